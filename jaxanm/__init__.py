@@ -1,0 +1,42 @@
+"""jaxanm: a high-order implicit solver (Asymptotic Numerical Method) on JAX.
+
+The residual of an implicit time step is written once in ``jax.numpy``; tangents come from
+``jax.jacfwd``, homotopy series coefficients from ``jax.experimental.jet``, and each series
+order is solved with one host LU factorisation of K*, reused while the series stays valid.
+
+Every public function runs in float64 (inside ``jax.enable_x64``) without changing JAX's
+global configuration; wrap your own jnp code in ``with jaxanm.float64():`` to match.
+"""
+
+from ._x64 import float64
+from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
+from .integrate import Solution, integrate
+from .jacobian import SparseJacobian, color_columns, detect_sparsity
+from .linalg import Factorization, factorize
+from .series import taylor_coefficients
+from .solvers import ANM, ModifiedNewton, Newton, evaluate_series, validity_range
+from .stats import Stats
+
+__all__ = [
+    "ANM",
+    "Factorization",
+    "InputError",
+    "ModifiedNewton",
+    "Newton",
+    "NonFiniteError",
+    "SingularMatrixError",
+    "Solution",
+    "SparseJacobian",
+    "Stats",
+    "StepFailure",
+    "color_columns",
+    "detect_sparsity",
+    "evaluate_series",
+    "factorize",
+    "float64",
+    "integrate",
+    "taylor_coefficients",
+    "validity_range",
+]
+
+__version__ = "0.1.0"

@@ -1,0 +1,191 @@
+"""The time loop: implicit Euler steps of a user residual with an ANM or Newton step solver."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse
+
+from ._x64 import entry_point
+from .errors import InputError, StepFailure
+from .jacobian import detect_sparsity
+from .solvers import ANM, ModifiedNewton, Newton, Problem
+from .stats import Stats
+
+_AUTO_SPARSE_SIZE = 400  # above this many unknowns "auto" picks the sparse Jacobian
+
+
+@dataclasses.dataclass
+class Solution:
+    """Result of :func:`integrate`: saved times ``ts (S,)``, states ``xs (S, n)``, ``stats``.
+
+    ``params`` holds the parameter pytree at each saved time when ``save_params=True``
+    (e.g. moving Lagrangian point clouds), else ``None``.
+    """
+
+    ts: np.ndarray
+    xs: np.ndarray
+    stats: Stats
+    params: list | None = None
+
+
+def _validate(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at):
+    x0 = np.asarray(x0, dtype=np.float64)
+    if x0.ndim != 1 or x0.size == 0:
+        raise InputError(f"x0 must be a non-empty 1-D array of unknowns, got shape {x0.shape}; flatten your state")
+    if not np.all(np.isfinite(x0)):
+        raise InputError(f"x0 has {int(np.sum(~np.isfinite(x0)))} non-finite entries; give a finite initial state")
+    for name, v in (("t0", t0), ("t1", t1), ("dt", dt)):
+        if not (isinstance(v, (int, float, np.floating, np.integer)) and math.isfinite(v)):
+            raise InputError(f"{name} must be a finite number, got {v!r}")
+    if not dt > 0:
+        raise InputError(f"dt must be > 0, got {dt!r}")
+    if not t1 > t0:
+        raise InputError(f"t1 must be > t0, got t0={t0!r}, t1={t1!r}")
+    if not isinstance(solver, (ANM, Newton, ModifiedNewton)):
+        raise InputError(f"solver must be jaxanm.ANM(...), jaxanm.Newton(...) or jaxanm.ModifiedNewton(...), got {solver!r}")
+    scale = np.broadcast_to(np.asarray(1.0 if scale is None else scale, dtype=np.float64), x0.shape).copy()
+    if not np.all(np.isfinite(scale) & (scale > 0)):
+        raise InputError("scale must be positive and finite (a characteristic magnitude per unknown)")
+    if jacobian not in ("auto", "dense", "sparse"):
+        raise InputError(f"jacobian must be 'auto', 'dense' or 'sparse', got {jacobian!r}")
+    if save_every is not None and save_at is not None:
+        raise InputError("give save_every or save_at, not both")
+    if save_every is not None and not (isinstance(save_every, int) and save_every >= 1):
+        raise InputError(f"save_every must be an integer >= 1, got {save_every!r}")
+    return x0, scale
+
+
+def _save_steps(t0, dt, n_steps, save_every, save_at):
+    if save_at is None:
+        every = save_every or 1
+        steps = set(range(0, n_steps + 1, every))
+    else:
+        times = np.atleast_1d(np.asarray(save_at, dtype=np.float64))
+        steps = {int(min(max(round((s - t0) / dt), 0), n_steps)) for s in times}
+        steps.add(0)
+    steps.add(n_steps)
+    return steps
+
+
+@entry_point
+def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: float, solver,
+              scale=None, jacobian: str = "auto", sparsity=None, save_every: int | None = None,
+              save_at=None, save_params: bool = False, after_step: Callable | None = None,
+              progress: bool = False, callback: Callable | None = None,
+              max_dt_halvings: int = 4) -> Solution:
+    """Integrate ``R(x_new, x_old, t_new, dt, params) = 0`` by implicit Euler steps from t0 to t1.
+
+    Parameters
+    ----------
+    residual : callable
+        ``residual(x_new, x_old, t_new, dt, params) -> (n,)`` in ``jax.numpy``, jet-compatible.
+    x0 : array (n,)
+        Initial state.
+    params : pytree of arrays
+        Traced parameters of the residual (changing values never recompiles).
+    t0, t1, dt : float
+        Time span and step; the last step is shortened to end exactly at t1.
+    solver : ANM | Newton | ModifiedNewton
+        Nonlinear step solver.
+    scale : float or array (n,)
+        Characteristic magnitude of each unknown (series norms, Newton convergence test).
+    jacobian : {"auto", "dense", "sparse"}
+        Tangent by dense ``jacfwd`` or by coloured compressed ``jacfwd``; "auto" is sparse when
+        ``sparsity`` is given or n > 400.
+    sparsity : scipy sparse matrix, callable ``params -> pattern``, or None
+        Jacobian sparsity pattern; None detects it from dense probes (small problems).
+    save_every, save_at :
+        Save every k-th step, or at the steps nearest to the given times (t0 and t1 always).
+    save_params : bool
+        Also keep ``params`` at the saved times (e.g. moving point clouds).
+    after_step : callable ``(t_new, x_new, params) -> params``
+        Host hook after every accepted step (Lagrangian motion, stencil rebuild).  The arrays
+        it returns must keep their shapes and dtypes.
+    progress : bool
+        Show a tqdm progress bar with time, steps/s and factorisations.
+    callback : callable ``(t_new, x_new, stats)``
+        Called after every accepted step.
+    max_dt_halvings : int
+        When a step fails, it is redone as two half steps, recursively up to this depth.
+
+    Returns
+    -------
+    Solution with ``ts``, ``xs``, ``stats`` (and ``params`` if requested).
+
+    Raises
+    ------
+    InputError
+        Invalid arguments, before any computation.
+    StepFailure, NonFiniteError
+        A step failed even after ``max_dt_halvings`` halvings; the message gives step, time,
+        a_max and residual norm.
+    """
+    x0, scale = _validate(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at)
+    start = time.perf_counter()
+    stats = Stats()
+    n = x0.size
+    if jacobian == "auto":
+        jacobian = "sparse" if (sparsity is not None or n > _AUTO_SPARSE_SIZE) else "dense"
+    if jacobian == "sparse" and sparsity is None:
+        sparsity = detect_sparsity(residual, x0, x0, t0 + dt, dt, params)
+    if sparsity is not None and not (callable(sparsity) or scipy.sparse.issparse(sparsity)):
+        raise InputError("sparsity must be a scipy sparse matrix or a callable params -> matrix")
+    stepper = solver.init(Problem(residual, scale, stats, jacobian, sparsity))
+
+    n_steps = max(1, math.ceil((t1 - t0) / dt - 1e-9))
+    saves = _save_steps(t0, dt, n_steps, save_every, save_at)
+    ts, xs, ps = [t0], [x0.copy()], [params] if save_params else None
+    bar = _progress_bar(n_steps, t1 - t0, progress)
+    x, t = x0, float(t0)
+
+    def advance(x, t, h, step, depth):
+        """One step of size h, split in halves on failure."""
+        try:
+            return stepper.step(step, x, jnp.float64(t + h), jnp.float64(h), params)
+        except StepFailure:
+            if depth >= max_dt_halvings:
+                raise
+            stats.dt_halvings += 1
+            xm = advance(x, t, h / 2, step, depth + 1)
+            return advance(xm, t + h / 2, h / 2, step, depth + 1)
+
+    try:
+        for k in range(1, n_steps + 1):
+            t_new = t0 + k * dt if k < n_steps else float(t1)
+            x_new = advance(x, t, t_new - t, k, 0)
+            r = stepper.problem.residual(x_new, x, jnp.float64(t_new), jnp.float64(t_new - t), params)
+            stats.residual_norm.append(float(np.max(np.abs(r))))
+            stats.time_steps += 1
+            x, t = x_new, t_new
+            if after_step is not None:
+                params = after_step(t, x, params)
+            if k in saves:
+                ts.append(t)
+                xs.append(x.copy())
+                if save_params:
+                    ps.append(params)
+            if callback is not None:
+                callback(t, x, stats)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(t=f"{t:.4g}", factorizations=stats.factorizations, refresh=False)
+    finally:
+        if bar is not None:
+            bar.close()
+        stats.close(time.perf_counter() - start)
+    return Solution(ts=np.asarray(ts), xs=np.asarray(xs), stats=stats, params=ps)
+
+
+def _progress_bar(n_steps, span, enabled):
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=n_steps, unit="step", desc=f"t span {span:.4g} s", dynamic_ncols=True)

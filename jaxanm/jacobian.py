@@ -1,0 +1,129 @@
+"""Tangent matrices by forward-mode autodiff: dense ``jacfwd`` or coloured compressed ``jacfwd``.
+
+For the sparse meshless operators, columns that share no row get the same colour
+(a distance-2 colouring of the column-intersection graph), all columns of one colour are
+seeded together, and one ``jvp`` per colour recovers every nonzero: the cost is the number of
+colours, not the number of unknowns.  The compressed product is computed on the device; the
+(cheap) scatter into a scipy CSC matrix is done on the host, so a new sparsity pattern
+(e.g. after a Lagrangian stencil rebuild) never forces a recompilation as long as the number
+of colours stays within the same padded bucket.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse
+
+from ._x64 import entry_point
+
+_COLOR_BUCKET = 16  # colours are padded to a multiple of this: fewer recompiles
+
+
+def color_columns(pattern) -> np.ndarray:
+    """Greedy colouring of the columns of a sparsity pattern.
+
+    Two columns get different colours whenever they have a nonzero in a common row, so
+    ``J @ seed(colour)`` holds each nonzero of ``J`` once.  Columns are visited by
+    decreasing degree (largest-first greedy).  Returns ``colors`` of shape ``(n,)``.
+    """
+    csc = scipy.sparse.csc_matrix(pattern, dtype=bool)
+    csr = csc.tocsr()
+    n = csc.shape[1]
+    degree = np.diff(csc.indptr)
+    colors = np.full(n, -1, dtype=np.int64)
+    for j in np.argsort(-degree, kind="stable"):
+        rows = csc.indices[csc.indptr[j] : csc.indptr[j + 1]]
+        if rows.size:
+            neighbours = np.concatenate([csr.indices[csr.indptr[r] : csr.indptr[r + 1]] for r in rows])
+            used = colors[neighbours]
+            used = np.unique(used[used >= 0])
+        else:
+            used = np.empty(0, dtype=np.int64)
+        # smallest colour not used by a neighbour
+        free = np.setdiff1d(np.arange(used.size + 1), used, assume_unique=True)
+        colors[j] = free[0]
+    return colors
+
+
+def _step_function(residual, x_old, t, dt, params):
+    return lambda x: residual(x, x_old, t, dt, params)
+
+
+@functools.lru_cache(maxsize=64)
+def dense_jacobian_function(residual):
+    """Jitted ``(x, x_old, t, dt, params) -> dR/dx_new`` (dense, by ``jax.jacfwd``)."""
+    return jax.jit(lambda x, x_old, t, dt, params: jax.jacfwd(_step_function(residual, x_old, t, dt, params))(x))
+
+
+@functools.lru_cache(maxsize=64)
+def compressed_jacobian_function(residual):
+    """Jitted ``(x, seeds, x_old, t, dt, params) -> (n_colors, n)``: rows are ``J @ seed``."""
+
+    def compressed(x, seeds, x_old, t, dt, params):
+        f = _step_function(residual, x_old, t, dt, params)
+        return jax.vmap(lambda s: jax.jvp(f, (x,), (s,))[1])(seeds)
+
+    return jax.jit(compressed)
+
+
+class SparseJacobian:
+    """Coloured, compressed ``jacfwd`` of a step residual, returned as a scipy CSC matrix.
+
+    ``pattern`` is a scipy sparse (n, n) matrix whose nonzeros include every structural
+    nonzero of the Jacobian (a superset is safe; a missing entry would be silently lost,
+    so :func:`detect_sparsity` or the model's own pattern must be complete).
+    """
+
+    def __init__(self, residual, pattern):
+        self._fn = compressed_jacobian_function(residual)
+        self.set_pattern(pattern)
+
+    def set_pattern(self, pattern) -> None:
+        """Install a (new) sparsity pattern: recolour and rebuild the seeds."""
+        coo = scipy.sparse.coo_matrix(pattern)
+        n = coo.shape[0]
+        if coo.shape != (n, n):
+            raise ValueError(f"sparsity pattern must be square (n, n), got {coo.shape}")
+        csc = scipy.sparse.csc_matrix((np.ones(coo.nnz, dtype=bool), (coo.row, coo.col)), shape=(n, n))
+        csc.sum_duplicates()
+        csc.sort_indices()
+        self.n = n
+        self.colors = color_columns(csc)
+        self.n_colors = int(self.colors.max()) + 1 if n else 0
+        padded = -(-self.n_colors // _COLOR_BUCKET) * _COLOR_BUCKET
+        seeds = np.zeros((padded, n))
+        seeds[self.colors, np.arange(n)] = 1.0
+        self._seeds = seeds
+        self._indptr = csc.indptr.copy()
+        self._rows = csc.indices.copy()
+        self._cols = np.repeat(np.arange(n), np.diff(csc.indptr))
+
+    def __call__(self, x, x_old, t, dt, params) -> scipy.sparse.csc_matrix:
+        """Jacobian ``dR/dx_new`` at ``x`` as a CSC matrix (host, float64)."""
+        compressed = np.asarray(self._fn(x, self._seeds, x_old, t, dt, params))
+        data = compressed[self.colors[self._cols], self._rows]
+        return scipy.sparse.csc_matrix((data, self._rows, self._indptr), shape=(self.n, self.n))
+
+
+@entry_point
+def detect_sparsity(residual, x, x_old, t, dt, params, probes: int = 3, seed: int = 0):
+    """Sparsity pattern of ``dR/dx_new`` from dense Jacobians at randomly perturbed points.
+
+    For small and moderate problems only (it forms ``probes`` dense n x n Jacobians).  An entry
+    is kept if it is nonzero at any probe; random perturbations of ``x`` make accidental zeros
+    (an entry that vanishes at one particular state) vanishingly unlikely.
+    Returns a boolean scipy CSC matrix.
+    """
+    jac = dense_jacobian_function(residual)
+    x = jnp.asarray(x, dtype=jnp.float64)
+    rng = np.random.default_rng(seed)
+    mask = None
+    for _ in range(probes):
+        xp = x + (1e-3 * (np.abs(np.asarray(x)) + 1.0)) * rng.standard_normal(x.shape)
+        nz = np.asarray(jac(xp, x_old, t, dt, params)) != 0.0
+        mask = nz if mask is None else (mask | nz)
+    return scipy.sparse.csc_matrix(mask)

@@ -1,0 +1,297 @@
+"""Nonlinear step solvers on one step residual: ANM (homotopy + jet series) and Newton.
+
+A solver is a small frozen options object (``ANM``, ``Newton``, ``ModifiedNewton``); at the
+start of a run it makes a *stepper* that owns the state carried across time steps (the
+factorised K* and whether it is fresh).  Every stepper sees the problem only through
+:class:`Problem`: residual evaluations, series evaluations, tangent matrices and
+factorisations, all counted in the same :class:`~jaxanm.stats.Stats`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import numpy as np
+import scipy.sparse
+
+from .errors import InputError, NonFiniteError, StepFailure
+from .jacobian import SparseJacobian, dense_jacobian_function
+from .linalg import Factorization, factorize
+from .series import path_coefficients
+from .stats import Stats
+
+
+@functools.lru_cache(maxsize=64)
+def _residual_function(residual):
+    return jax.jit(residual)
+
+
+@functools.lru_cache(maxsize=64)
+def _series_function(residual):
+    """Jitted ``(d_s, terms, x_old, t, dt, params) -> [R]_1..[R]_K`` along ``d_s + sum a^k terms[k-1]``.
+
+    Compiled once per number of terms K (the highest order); lower orders are obtained by
+    feeding zeros for the coefficients not known yet, so nothing recompiles per order or step.
+    """
+    return jax.jit(lambda d_s, terms, *args: path_coefficients(residual, d_s, terms, *args)[1])
+
+
+class Problem:
+    """The discrete step problem as the solvers see it (residual, series, tangent, scale)."""
+
+    def __init__(self, residual, scale, stats: Stats, jacobian: str, sparsity):
+        self.stats = stats
+        self.scale = scale
+        self._raw_residual = residual
+        self._residual = _residual_function(residual)
+        self._series = _series_function(residual)
+        self._mode = jacobian
+        self._sparsity = sparsity
+        self._sparse = None
+        self._pattern_key = None
+        self._dense = dense_jacobian_function(residual) if jacobian == "dense" else None
+
+    def residual(self, x, x_old, t, dt, params) -> np.ndarray:
+        """Step residual on the host."""
+        with self.stats.timer("series"):
+            r = np.asarray(self._residual(x, x_old, t, dt, params))
+        self.stats.residual_evaluations += 1
+        return r
+
+    def series(self, d_s, terms, x_old, t, dt, params) -> np.ndarray:
+        """Taylor coefficients ``[R]_1..[R]_K`` of the residual along the series path."""
+        with self.stats.timer("series"):
+            fs = np.asarray(self._series(d_s, terms, x_old, t, dt, params))
+        self.stats.series_orders += 1
+        return fs
+
+    def tangent(self, x, x_old, t, dt, params):
+        """``dR/dx_new`` at ``x``: dense ndarray or scipy CSC, by forward-mode autodiff."""
+        with self.stats.timer("jacobian"):
+            if self._dense is not None:
+                jac = np.asarray(self._dense(x, x_old, t, dt, params))
+            else:
+                pattern = self._sparsity(params) if callable(self._sparsity) else self._sparsity
+                if self._sparse is None:
+                    self._sparse = SparseJacobian(self._raw_residual, pattern)
+                    self._pattern_key = _pattern_key(pattern)
+                elif callable(self._sparsity):
+                    key = _pattern_key(pattern)
+                    if key != self._pattern_key:
+                        self._sparse.set_pattern(pattern)
+                        self._pattern_key = key
+                jac = self._sparse(x, x_old, t, dt, params)
+        self.stats.jacobian_evaluations += 1
+        return jac
+
+    def factorize_at(self, x, x_old, t, dt, params) -> Factorization:
+        """Tangent at ``x`` factorised on the host (counted)."""
+        return factorize(self.tangent(x, x_old, t, dt, params), self.stats)
+
+    def norm(self, v) -> float:
+        """2-norm of ``v / scale`` (non-dimensional unknowns)."""
+        return float(np.linalg.norm(v / self.scale))
+
+
+def _pattern_key(pattern):
+    csr = scipy.sparse.csr_matrix(pattern)
+    csr.sort_indices()
+    return (csr.shape, csr.nnz, hash(csr.indptr.tobytes()), hash(csr.indices.tobytes()))
+
+
+def validity_range(coeffs: np.ndarray, scale, tol: float) -> float:
+    """a_max of eq. 26: ``(tol ||c_1|| / ||c_p||)^(1/(p-1))`` on the scaled unknowns.
+
+    ``inf`` when the last coefficient vanishes (the series is exact); ``0`` when the first does
+    not but a coefficient is non-finite.
+    """
+    p = coeffs.shape[0]
+    n1 = np.linalg.norm(coeffs[0] / scale)
+    npp = np.linalg.norm(coeffs[-1] / scale)
+    if not (np.isfinite(n1) and np.isfinite(npp)):
+        return 0.0
+    if npp == 0.0:
+        return np.inf
+    return float((tol * n1 / npp) ** (1.0 / (p - 1)))
+
+
+def evaluate_series(coeffs: np.ndarray, a: float) -> np.ndarray:
+    """``sum_j a^j c_j`` by Horner's rule (``coeffs[j-1] = c_j``)."""
+    acc = np.zeros_like(coeffs[0])
+    for c in coeffs[::-1]:
+        acc = (acc + c) * a
+    return acc
+
+
+def _check_tol(name, tol):
+    if not (isinstance(tol, (int, float)) and np.isfinite(tol) and 0 < tol < 1):
+        raise InputError(f"{name}.tol must be a float in (0, 1), got {tol!r}; e.g. tol=1e-6")
+
+
+def _check_count(name, field, value, minimum):
+    if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= minimum):
+        raise InputError(f"{name}.{field} must be an integer >= {minimum}, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class ANM:
+    """Asymptotic Numerical Method: homotopy, Taylor series by jet, continuation.
+
+    Parameters
+    ----------
+    order : int
+        Truncation order p of the series (>= 2: eq. 26 compares c_1 and c_p).
+    tol : float
+        eta of eq. 26: the series is accepted at a = 1 when a_max >= 1.
+    max_substeps : int
+        Continuation sub-steps allowed within one time step (each after a fresh K*
+        still gave a_max < 1) before the step is declared failed (then ``integrate`` halves dt).
+    """
+
+    order: int = 7
+    tol: float = 1e-6
+    max_substeps: int = 50
+
+    def __post_init__(self):
+        _check_count("ANM", "order", self.order, 2)
+        _check_tol("ANM", self.tol)
+        _check_count("ANM", "max_substeps", self.max_substeps, 0)
+
+    def init(self, problem: Problem) -> "_ANMStepper":
+        """Stepper carrying K* across time steps."""
+        return _ANMStepper(self, problem)
+
+
+class _ANMStepper:
+    def __init__(self, opts: ANM, problem: Problem):
+        self.opts = opts
+        self.problem = problem
+        self.fact = None
+
+    def step(self, step: int, x_old, t, dt, params):
+        P, p, st = self.problem, self.opts.order, self.problem.stats
+        d_s = np.array(x_old, dtype=np.float64)
+        fresh = False
+        substeps = 0
+        while True:
+            if self.fact is None:
+                self.fact = P.factorize_at(d_s, x_old, t, dt, params)
+                fresh = True
+            r0 = P.residual(d_s, x_old, t, dt, params)
+            r0_norm = float(np.max(np.abs(r0)))
+            if not np.isfinite(r0_norm):
+                raise NonFiniteError("residual at the start of the series is not finite", step=step, t=t)
+            coeffs = np.zeros((p, d_s.size))
+            with st.timer("solve"):
+                coeffs[0] = -self.fact.solve(r0)
+            for j in range(2, p + 1):
+                rj = P.series(d_s, coeffs[: p - 1], x_old, t, dt, params)[j - 2]
+                with st.timer("solve"):
+                    coeffs[j - 1] = coeffs[j - 2] - self.fact.solve(rj)
+            amax = validity_range(coeffs, P.scale, self.opts.tol)
+            if amax >= 1.0:
+                st.amax.append(amax)
+                return d_s + coeffs.sum(axis=0)
+            if not fresh:  # stale K*: refactorise at the current point and redo the series
+                self.fact = None
+                continue
+            if not np.all(np.isfinite(coeffs)):
+                raise NonFiniteError("series coefficients are not finite with a fresh K*", step=step, t=t,
+                                     amax=amax, residual_norm=r0_norm)
+            substeps += 1
+            st.substeps += 1
+            if substeps > self.opts.max_substeps or amax < 1e-12:
+                raise StepFailure(f"series from a fresh K* cannot reach a = 1 after {substeps - 1} "
+                                  f"continuation sub-steps (max_substeps = {self.opts.max_substeps})",
+                                  step=step, t=t, amax=amax, residual_norm=r0_norm)
+            d_s = d_s + evaluate_series(coeffs, amax)  # continuation: restart the homotopy there
+            fresh = False
+
+
+def _relative_change(P: Problem, dx, x) -> float:
+    return P.norm(dx) / max(P.norm(x), np.finfo(float).tiny)
+
+
+@dataclasses.dataclass(frozen=True)
+class Newton:
+    """Newton–Raphson: a Jacobian and a factorisation at every iteration.
+
+    Converged when the relative change of the (scaled) iterates ``|dx| / |x|`` is below ``tol``
+    (the paper's delta).
+    """
+
+    tol: float = 1e-6
+    max_iter: int = 30
+
+    def __post_init__(self):
+        _check_tol("Newton", self.tol)
+        _check_count("Newton", "max_iter", self.max_iter, 1)
+
+    def init(self, problem: Problem) -> "_NewtonStepper":
+        """Stateless stepper (nothing is reused across iterations)."""
+        return _NewtonStepper(self, problem, reuse=False)
+
+
+@dataclasses.dataclass(frozen=True)
+class ModifiedNewton:
+    """Modified Newton: the factorised Jacobian is reused across iterations and time steps.
+
+    It is rebuilt at the current iterate when the contraction ``|dx_k| / |dx_{k-1}|`` exceeds
+    ``max_rate`` (or the iteration diverges).  Same convergence test as :class:`Newton`.
+    """
+
+    tol: float = 1e-6
+    max_iter: int = 50
+    max_rate: float = 0.5
+
+    def __post_init__(self):
+        _check_tol("ModifiedNewton", self.tol)
+        _check_count("ModifiedNewton", "max_iter", self.max_iter, 1)
+        if not (0 < self.max_rate < 1):
+            raise InputError(f"ModifiedNewton.max_rate must be in (0, 1), got {self.max_rate!r}")
+
+    def init(self, problem: Problem) -> "_NewtonStepper":
+        """Stepper carrying the factorised Jacobian across iterations and time steps."""
+        return _NewtonStepper(self, problem, reuse=True)
+
+
+class _NewtonStepper:
+    def __init__(self, opts, problem: Problem, reuse: bool):
+        self.opts = opts
+        self.problem = problem
+        self.reuse = reuse
+        self.fact = None
+
+    def step(self, step: int, x_old, t, dt, params):
+        P, st = self.problem, self.problem.stats
+        x = np.array(x_old, dtype=np.float64)
+        previous = None
+        change = np.inf
+        for _ in range(self.opts.max_iter):
+            r = P.residual(x, x_old, t, dt, params)
+            r_norm = float(np.max(np.abs(r)))
+            if not np.isfinite(r_norm):
+                raise NonFiniteError("Newton residual is not finite", step=step, t=t)
+            just_factored = self.fact is None or not self.reuse
+            if just_factored:
+                self.fact = P.factorize_at(x, x_old, t, dt, params)
+            with st.timer("solve"):
+                dx = -self.fact.solve(r)
+            size = P.norm(dx)
+            if (not just_factored and previous is not None and size > self.opts.max_rate * previous) or not np.isfinite(size):
+                if just_factored:
+                    raise NonFiniteError("Newton correction is not finite", step=step, t=t, residual_norm=r_norm)
+                self.fact = None  # slow or diverging with an old Jacobian: rebuild it here
+                previous = None
+                continue
+            x = x + dx
+            st.newton_iterations += 1
+            previous = size
+            change = _relative_change(P, dx, x)
+            if change <= self.opts.tol:
+                return x
+        raise StepFailure(f"{type(self.opts).__name__} did not converge in {self.opts.max_iter} iterations "
+                          f"(last relative change {change:.3g} > tol {self.opts.tol:g})",
+                          step=step, t=t, residual_norm=r_norm)

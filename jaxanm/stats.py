@@ -1,0 +1,64 @@
+"""Run statistics: counters, the a_max history and the wall-time split."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import time
+
+TIMER_KEYS = ("jacobian", "factorize", "series", "solve", "other")
+
+
+@dataclasses.dataclass
+class Stats:
+    """Statistics of one :func:`jaxanm.integrate` run.
+
+    Counters are totals over the run.  ``series_orders`` counts evaluations of the jet
+    series (one per order and per series); ``residual_evaluations`` counts plain residual
+    evaluations (series evaluations excluded).  ``amax`` holds, for ANM, the validity range
+    of the accepted series of each time step; ``residual_norm`` the max-norm of the step
+    residual at each accepted state.  ``wall_time`` splits ``wall_time_s`` into
+    ``jacobian``, ``factorize``, ``series``, ``solve`` (triangular solves) and ``other``.
+    """
+
+    factorizations: int = 0
+    jacobian_evaluations: int = 0
+    time_steps: int = 0
+    series_orders: int = 0
+    residual_evaluations: int = 0
+    newton_iterations: int = 0
+    substeps: int = 0
+    dt_halvings: int = 0
+    amax: list = dataclasses.field(default_factory=list)
+    residual_norm: list = dataclasses.field(default_factory=list)
+    wall_time_s: float = 0.0
+    wall_time: dict = dataclasses.field(default_factory=lambda: dict.fromkeys(TIMER_KEYS, 0.0))
+
+    @contextlib.contextmanager
+    def timer(self, key: str):
+        """Accumulate the wall time of the ``with`` block under ``wall_time[key]``."""
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.wall_time[key] += time.perf_counter() - start
+
+    def close(self, total_s: float) -> None:
+        """Set the total wall time; ``other`` gets what the named timers did not account for."""
+        self.wall_time_s = total_s
+        named = sum(v for k, v in self.wall_time.items() if k != "other")
+        self.wall_time["other"] = max(total_s - named, 0.0)
+
+    def as_dict(self) -> dict:
+        """Plain-Python dictionary (JSON-serialisable) of every field."""
+        d = dataclasses.asdict(self)
+        d["amax"] = [float(a) for a in self.amax]
+        d["residual_norm"] = [float(r) for r in self.residual_norm]
+        return d
+
+    def summary(self) -> dict:
+        """The headline numbers (no per-step lists), for printing side by side."""
+        d = self.as_dict()
+        del d["amax"], d["residual_norm"]
+        d["wall_time"] = {k: round(v, 4) for k, v in self.wall_time.items()}
+        return d

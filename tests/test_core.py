@@ -1,0 +1,210 @@
+"""Core engine: ANM vs Newton, validity range, continuation, colouring, float64, errors."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.sparse
+
+import jaxanm
+from jaxanm.solvers import evaluate_series
+from model_problems import heat_1d, impulsive_cubic
+
+
+def _run(problem, solver, **kw):
+    residual, x0, params = problem
+    kw = {"t0": 0.0, "t1": 1.0, "dt": 1e-2, **kw}
+    return jaxanm.integrate(residual, x0, params, solver=solver, **kw)
+
+
+def test_anm_newton_agree_and_anm_factorizes_10x_less():
+    """Same discrete problem: ANM, Newton, modified Newton agree within their tolerances."""
+    problem = heat_1d()
+    anm = _run(problem, jaxanm.ANM(order=7, tol=1e-8))
+    newton = _run(problem, jaxanm.Newton(tol=1e-10))
+    mnewton = _run(problem, jaxanm.ModifiedNewton(tol=1e-10))
+    ref = newton.xs
+    scale = np.abs(ref).max()
+    assert np.abs(anm.xs - ref).max() / scale < 1e-6
+    assert np.abs(mnewton.xs - ref).max() / scale < 1e-8
+    assert anm.stats.time_steps == newton.stats.time_steps == 100
+    assert newton.stats.factorizations >= 10 * anm.stats.factorizations
+    assert all(a >= 1.0 for a in anm.stats.amax) and len(anm.stats.amax) == 100
+    # the accepted ANM states satisfy the step equations to series accuracy
+    assert max(anm.stats.residual_norm) < 1e-4 * max(newton.stats.residual_norm[:1] + [1.0])
+
+
+def test_tighter_anm_tolerance_gets_closer_to_the_exact_step_solution():
+    problem = heat_1d()
+    ref = _run(problem, jaxanm.Newton(tol=1e-12), t1=0.2).xs
+    errs = [np.abs(_run(problem, jaxanm.ANM(order=7, tol=tol), t1=0.2).xs - ref).max() for tol in (1e-4, 1e-8)]
+    assert errs[1] < errs[0]
+
+
+def _homotopy_path_quadratic(b, k, a):
+    """Exact root of (1-a) k (d - 0) + a (d^2 - b) = 0 through d(0) = 0 (closed form)."""
+    return (-(1 - a) * k + np.sqrt(((1 - a) * k) ** 2 + 4 * a * a * b)) / (2 * a)
+
+
+def test_series_reproduces_exact_homotopy_path_within_amax():
+    """Scalar R(d) = d^2 - b from d_s = 0 with K* = 1: the path d(a) is known in closed form."""
+    b, k, p, tol = 0.6, 1.0, 15, 1e-6
+
+    def residual(d, d_old, t, dt, params):
+        return d**2 - b
+
+    problem = jaxanm.solvers.Problem(residual, np.ones(1), jaxanm.Stats(), "dense", None)
+    with jaxanm.float64():
+        args = (np.zeros(1), jnp.float64(1.0), jnp.float64(1.0), None)
+        fact = jaxanm.factorize(np.array([[k]]), problem.stats)
+        coeffs = np.zeros((p, 1))
+        coeffs[0] = -fact.solve(problem.residual(np.zeros(1), *args))
+        for j in range(2, p + 1):
+            coeffs[j - 1] = coeffs[j - 2] - fact.solve(problem.series(np.zeros(1), coeffs[: p - 1], *args)[j - 2])
+    amax = jaxanm.validity_range(coeffs, np.ones(1), tol)
+    assert 0.1 < amax < 1.0
+    for a in (0.25 * amax, 0.5 * amax, amax):
+        exact = _homotopy_path_quadratic(b, k, a)
+        assert abs(evaluate_series(coeffs, a)[0] - exact) <= 10 * tol * abs(coeffs[0, 0])
+
+
+def test_validity_range_formula():
+    c = np.array([[2.0, 0.0], [0.0, 1.0], [3e-4, 4e-4]])  # |c1| = 2, |c3| = 5e-4
+    scale = np.array([1.0, 1.0])
+    assert jaxanm.validity_range(c, scale, 1e-6) == pytest.approx((1e-6 * 2 / 5e-4) ** 0.5)
+    assert jaxanm.validity_range(np.array([[1.0], [0.0]]), np.ones(1), 1e-6) == np.inf
+    assert jaxanm.validity_range(np.array([[1.0], [np.nan]]), np.ones(1), 1e-6) == 0.0
+
+
+def test_impulsive_start_uses_in_step_continuation_and_converges():
+    problem = impulsive_cubic()
+    anm = _run(problem, jaxanm.ANM(order=7, tol=1e-8), t1=0.05)
+    newton = _run(problem, jaxanm.Newton(tol=1e-12), t1=0.05)
+    assert anm.stats.substeps > 0
+    assert anm.stats.factorizations > 1
+    np.testing.assert_allclose(anm.xs[-1], newton.xs[-1], rtol=1e-6)
+    forcing = np.linspace(50.0, 200.0, 5)
+    u = anm.xs[-1]
+    np.testing.assert_allclose(u**3 + u, forcing, rtol=1e-5)  # the quasi-static state
+
+
+def test_stale_kstar_is_refactorised_when_the_series_fails():
+    """Smooth start, then the source doubles at t = 0.5: the old K* fails and is replaced."""
+    residual0, x0, params = heat_1d()
+
+    def residual(u, u_old, t, dt, p):
+        return residual0(u, u_old, t, dt, p) - jnp.where(t > 0.5, 40.0, 0.0)
+
+    sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=1.0, dt=1e-2, solver=jaxanm.ANM(order=5, tol=1e-8))
+    assert sol.stats.factorizations >= 2
+    ref = jaxanm.integrate(residual, x0, params, t0=0.0, t1=1.0, dt=1e-2, solver=jaxanm.Newton(tol=1e-12))
+    assert np.abs(sol.xs[-1] - ref.xs[-1]).max() < 1e-5 * np.abs(ref.xs[-1]).max()
+
+
+def test_failed_step_is_halved_then_reports_step_time_amax():
+    problem = impulsive_cubic()
+    strict = jaxanm.ANM(order=4, tol=1e-8, max_substeps=0)
+    sol = _run(problem, strict, t1=0.02, max_dt_halvings=30)
+    assert sol.stats.dt_halvings > 0 and np.all(np.isfinite(sol.xs))
+    with pytest.raises(jaxanm.StepFailure) as info:
+        _run(problem, strict, t1=0.02, max_dt_halvings=0)
+    err = info.value
+    assert err.step == 1 and err.amax is not None and err.amax < 1
+    assert "a_max" in str(err) and "step 1" in str(err)
+
+
+def test_nonfinite_residual_raises_named_error():
+    def residual(u, u_old, t, dt, p):
+        return (u - u_old) / dt - jnp.sqrt(1.2 - 10 * t) * jnp.ones_like(u)  # NaN from step 3 (t = 0.15) on
+
+    with pytest.raises(jaxanm.NonFiniteError, match="not finite"):
+        jaxanm.integrate(residual, np.zeros(3), None, t0=0, t1=0.5, dt=0.05, solver=jaxanm.ANM())
+    with pytest.raises(jaxanm.NonFiniteError, match="step 3"):
+        jaxanm.integrate(residual, np.zeros(3), None, t0=0, t1=0.5, dt=0.05, solver=jaxanm.Newton())
+
+
+def _random_stencil_problem(n=60, seed=1):
+    rng = np.random.default_rng(seed)
+    index = np.stack([np.arange(n), *(rng.integers(0, n, n) for _ in range(4))], axis=1)
+    weights = rng.standard_normal(index.shape)
+
+    def residual(x, x_old, t, dt, p):
+        g = (p["w"] * x[p["idx"]]).sum(axis=1)
+        return x - x_old + dt * (g**3 + jnp.exp(0.1 * g) * x)
+
+    params = {"idx": jnp.asarray(index), "w": jnp.asarray(weights)}
+    rows = np.repeat(np.arange(n), index.shape[1])
+    pattern = scipy.sparse.csc_matrix((np.ones(rows.size), (rows, index.ravel())), shape=(n, n))
+    pattern = pattern + scipy.sparse.identity(n)
+    return residual, rng.standard_normal(n), params, pattern
+
+
+def test_sparse_coloured_jacobian_equals_dense():
+    residual, x, params, pattern = _random_stencil_problem()
+    with jaxanm.float64():
+        dense = np.asarray(jax.jacfwd(lambda y: residual(y, x, 0.0, 0.1, params))(jnp.asarray(x)))
+        sparse = jaxanm.SparseJacobian(residual, pattern)(x, x, 0.0, 0.1, params)
+        detected = jaxanm.detect_sparsity(residual, x, x, 0.0, 0.1, params)
+        sparse_detected = jaxanm.SparseJacobian(residual, detected)(x, x, 0.0, 0.1, params)
+    assert sparse.dtype == np.float64
+    np.testing.assert_allclose(sparse.toarray(), dense, rtol=0, atol=1e-12 * np.abs(dense).max())
+    np.testing.assert_allclose(sparse_detected.toarray(), dense, rtol=0, atol=1e-12 * np.abs(dense).max())
+
+
+def test_colouring_is_valid_and_tight_on_a_tridiagonal_pattern():
+    n = 50
+    tri = scipy.sparse.diags([1.0, 1.0, 1.0], [-1, 0, 1], shape=(n, n))
+    colors = jaxanm.color_columns(tri)
+    assert colors.max() + 1 == 3
+    _, x, _, pattern = _random_stencil_problem()
+    colors = jaxanm.color_columns(pattern)
+    csr = scipy.sparse.csr_matrix(pattern)
+    for r in range(csr.shape[0]):
+        cols = csr.indices[csr.indptr[r] : csr.indptr[r + 1]]
+        assert len(set(colors[cols])) == len(cols)  # no two columns of a row share a colour
+
+
+def test_float64_end_to_end_without_global_flag():
+    assert not jax.config.jax_enable_x64  # the tests never flip it; jaxanm must not either
+    residual, x0, params = heat_1d(10)
+    sol = _run((residual, x0.astype(np.float32), params), jaxanm.ANM(), t1=0.05)
+    assert sol.xs.dtype == np.float64
+    terms = jaxanm.taylor_coefficients(lambda x: jnp.exp(x), jnp.zeros(2), [jnp.ones(2)] * 3)
+    assert all(t.dtype == jnp.float64 for t in terms)
+    assert not jax.config.jax_enable_x64
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"dt": -1.0}, "dt must be > 0"),
+        ({"t1": -1.0}, "t1 must be > t0"),
+        ({"solver": "anm"}, "solver must be"),
+        ({"scale": -1.0}, "scale must be positive"),
+        ({"jacobian": "lu"}, "jacobian must be"),
+        ({"save_every": 0}, "save_every"),
+    ],
+)
+def test_bad_input_is_rejected_before_computing(kwargs, match):
+    residual, x0, params = heat_1d(5)
+    base = {"t0": 0.0, "t1": 0.1, "dt": 0.01, "solver": jaxanm.ANM()}
+    with pytest.raises(jaxanm.InputError, match=match):
+        jaxanm.integrate(residual, x0, params, **{**base, **kwargs})
+
+
+def test_bad_solver_options_are_rejected():
+    with pytest.raises(jaxanm.InputError, match="order"):
+        jaxanm.ANM(order=1)
+    with pytest.raises(jaxanm.InputError, match="tol"):
+        jaxanm.Newton(tol=0.0)
+    with pytest.raises(jaxanm.InputError, match="non-finite"):
+        jaxanm.integrate(lambda x, *a: x, np.array([np.nan]), None, t0=0, t1=1, dt=0.1, solver=jaxanm.ANM())
+
+
+def test_save_at_and_params_history():
+    residual, x0, params = heat_1d(8)
+    sol = _run((residual, x0, params), jaxanm.ANM(), t1=0.1, save_at=[0.03, 0.05], save_params=True)
+    np.testing.assert_allclose(sol.ts, [0.0, 0.03, 0.05, 0.1])
+    assert len(sol.params) == 4 and sol.xs.shape == (4, 8)
