@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import warnings
 from typing import Callable
 
 import jax
@@ -60,6 +61,27 @@ def _validate(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at):
     if save_every is not None and not (isinstance(save_every, int) and save_every >= 1):
         raise InputError(f"save_every must be an integer >= 1, got {save_every!r}")
     return x0, scale
+
+
+def _params_float64(params):
+    """Floating leaves of ``params`` as float64; warn when a lower precision was given."""
+    lowered = []
+
+    def cast(leaf):
+        dtype = np.asarray(leaf).dtype if not hasattr(leaf, "dtype") else leaf.dtype
+        if np.issubdtype(dtype, np.floating) and dtype != np.float64:
+            lowered.append(str(dtype))
+            return jnp.asarray(leaf, dtype=jnp.float64)
+        return leaf
+
+    params = jax.tree_util.tree_map(cast, params)
+    if lowered:
+        warnings.warn(
+            f"{len(lowered)} params leaves were {sorted(set(lowered))}, converted to float64; their values "
+            "may already have lost precision: build them as numpy float64 or inside jaxanm.float64()",
+            stacklevel=3,
+        )
+    return params
 
 
 def _save_steps(t0, dt, n_steps, save_every, save_at):
@@ -128,6 +150,7 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         a_max and residual norm.
     """
     x0, scale = _validate(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at)
+    params = _params_float64(params)
     start = time.perf_counter()
     stats = Stats()
     n = x0.size

@@ -14,7 +14,7 @@ def heat_1d(n: int = 40):
     Returns ``(residual, x0, params)``.
     """
     h = 1.0 / (n + 1)
-    xg = jnp.linspace(h, 1.0 - h, n)
+    xg = np.linspace(h, 1.0 - h, n)
 
     def residual(u, u_old, t, dt, p):
         up = jnp.concatenate([jnp.zeros(1), u, jnp.zeros(1)])
@@ -23,7 +23,7 @@ def heat_1d(n: int = 40):
         source = 5.0 * jnp.sin(jnp.pi * xg) * (1.0 + 0.5 * jnp.sin(4.0 * t))
         return (u - u_old) / dt - (flux[1:] - flux[:-1]) / h - source + p["r"] * u**3
 
-    return residual, np.zeros(n), {"c": jnp.asarray(1.0), "r": jnp.asarray(1.0)}
+    return residual, np.zeros(n), {"c": np.float64(1.0), "r": np.float64(1.0)}
 
 
 def impulsive_cubic(n: int = 5):
@@ -32,9 +32,9 @@ def impulsive_cubic(n: int = 5):
     With dt >> eps the first step jumps from u = 0 to u ~ F^(1/3): a series from the initial
     tangent cannot reach a = 1 and in-step continuation is needed.
     """
-    forcing = jnp.linspace(50.0, 200.0, n)
+    forcing = np.linspace(50.0, 200.0, n)
 
     def residual(u, u_old, t, dt, p):
         return p["eps"] * (u - u_old) / dt - (forcing - u**3 - u)
 
-    return residual, np.zeros(n), {"eps": jnp.asarray(1e-6)}
+    return residual, np.zeros(n), {"eps": np.float64(1e-6)}

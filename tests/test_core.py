@@ -134,7 +134,7 @@ def _random_stencil_problem(n=60, seed=1):
         g = (p["w"] * x[p["idx"]]).sum(axis=1)
         return x - x_old + dt * (g**3 + jnp.exp(0.1 * g) * x)
 
-    params = {"idx": jnp.asarray(index), "w": jnp.asarray(weights)}
+    params = {"idx": index, "w": weights}
     rows = np.repeat(np.arange(n), index.shape[1])
     pattern = scipy.sparse.csc_matrix((np.ones(rows.size), (rows, index.ravel())), shape=(n, n))
     pattern = pattern + scipy.sparse.identity(n)
@@ -174,6 +174,9 @@ def test_float64_end_to_end_without_global_flag():
     terms = jaxanm.taylor_coefficients(lambda x: jnp.exp(x), jnp.zeros(2), [jnp.ones(2)] * 3)
     assert all(t.dtype == jnp.float64 for t in terms)
     assert not jax.config.jax_enable_x64
+    with pytest.warns(UserWarning, match="converted to float64"):
+        sol = _run((residual, x0, {"c": jnp.asarray(1.0), "r": np.float32(1.0)}), jaxanm.ANM(), t1=0.02)
+    assert sol.xs.dtype == np.float64
 
 
 @pytest.mark.parametrize(
