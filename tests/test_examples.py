@@ -1,0 +1,32 @@
+"""The examples run as a user runs them (small settings), each pinning a meaningful number."""
+
+from __future__ import annotations
+
+import importlib.util
+import pathlib
+
+import numpy as np
+
+EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
+
+
+def load_example(name: str):
+    """Import ``examples/<name>.py`` as a module."""
+    spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_reaction_diffusion_example(capsys):
+    example = load_example("reaction_diffusion")
+    results = example.compare(n=40, t_end=0.2, dt=2e-3, tol=1e-8)
+    example.print_table(results)
+    out = capsys.readouterr().out
+    assert "factorizations" in out and "ANM p=7" in out
+    ref = results["Newton"].xs[-1]
+    for name in ("ANM p=7", "modified Newton"):
+        assert np.abs(results[name].xs[-1] - ref).max() < 1e-6 * np.abs(ref).max()
+    assert results["Newton"].stats.factorizations >= 10 * results["ANM p=7"].stats.factorizations
+    # steady balance check: the source amplitude 20 * sin(pi x) is O(10) and the solution stays O(1)
+    assert 0.1 < ref.max() < 10
