@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 import warnings
 from typing import Callable
@@ -14,8 +15,10 @@ import numpy as np
 import scipy.sparse
 
 from ._x64 import entry_point
+from .checkpoint import read, sigterm_as_interrupt, to_host, write_atomic
 from .errors import InputError, StepFailure
 from .jacobian import detect_sparsity
+from .linalg import Factorization
 from .solvers import ANM, ModifiedNewton, Newton, Problem
 from .stats import Stats
 
@@ -27,13 +30,15 @@ class Solution:
     """Result of :func:`integrate`: saved times ``ts (S,)``, states ``xs (S, n)``, ``stats``.
 
     ``params`` holds the parameter pytree at each saved time when ``save_params=True``
-    (e.g. moving Lagrangian point clouds), else ``None``.
+    (e.g. moving Lagrangian point clouds), else ``None``; ``observed`` the quantities recorded
+    by ``observe`` at every step (``{"t": (M,), key: (M, ...)}``), else ``None``.
     """
 
     ts: np.ndarray
     xs: np.ndarray
     stats: Stats
     params: list | None = None
+    observed: dict | None = None
 
 
 def _validate(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at):
@@ -100,8 +105,9 @@ def _save_steps(t0, dt, n_steps, save_every, save_at):
 def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: float, solver,
               scale=None, jacobian: str = "auto", sparsity=None, save_every: int | None = None,
               save_at=None, save_params: bool = False, after_step: Callable | None = None,
-              progress: bool = False, callback: Callable | None = None,
-              max_dt_halvings: int = 4) -> Solution:
+              observe: Callable | None = None, progress: bool = False, callback: Callable | None = None,
+              max_dt_halvings: int = 4, checkpoint=None, checkpoint_every: int = 0,
+              resume: bool = False) -> Solution:
     """Integrate ``R(x_new, x_old, t_new, dt, params) = 0`` by implicit Euler steps from t0 to t1.
 
     Parameters
@@ -130,16 +136,26 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     after_step : callable ``(t_new, x_new, params) -> params``
         Host hook after every accepted step (Lagrangian motion, stencil rebuild).  The arrays
         it returns must keep their shapes and dtypes.
+    observe : callable ``(t, x, params) -> dict of arrays``
+        Quantities recorded at t0 and after every accepted step (probe histories); returned
+        in ``Solution.observed`` as ``{"t": (M,), key: (M, ...)}`` and kept in checkpoints.
     progress : bool
         Show a tqdm progress bar with time, steps/s and factorisations.
     callback : callable ``(t_new, x_new, stats)``
         Called after every accepted step.
     max_dt_halvings : int
         When a step fails, it is redone as two half steps, recursively up to this depth.
+    checkpoint : path, optional
+        Checkpoint file.  Written atomically every ``checkpoint_every`` steps, at the end, and
+        when the run is interrupted (KeyboardInterrupt/SIGINT, SIGTERM) or fails.
+    resume : bool
+        Continue from ``checkpoint`` if it exists; the continued run is bit-identical to an
+        uninterrupted one (K* is re-factorised from its stored matrix, counted in
+        ``stats.resumes``, not in ``factorizations``).
 
     Returns
     -------
-    Solution with ``ts``, ``xs``, ``stats`` (and ``params`` if requested).
+    Solution with ``ts``, ``xs``, ``stats`` (and ``params``, ``observed`` if requested).
 
     Raises
     ------
@@ -150,9 +166,12 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         a_max and residual norm.
     """
     x0, scale = _validate(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at)
+    if checkpoint_every and checkpoint is None:
+        raise InputError("checkpoint_every needs a checkpoint path: pass checkpoint='run.ckpt'")
+    if resume and checkpoint is None:
+        raise InputError("resume=True needs the checkpoint path to resume from")
     params = _params_float64(params)
     start = time.perf_counter()
-    stats = Stats()
     n = x0.size
     if jacobian == "auto":
         jacobian = "sparse" if (sparsity is not None or n > _AUTO_SPARSE_SIZE) else "dense"
@@ -160,18 +179,27 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         sparsity = detect_sparsity(residual, x0, x0, t0 + dt, dt, params)
     if sparsity is not None and not (callable(sparsity) or scipy.sparse.issparse(sparsity)):
         raise InputError("sparsity must be a scipy sparse matrix or a callable params -> matrix")
-    stepper = solver.init(Problem(residual, scale, stats, jacobian, sparsity))
-
     n_steps = max(1, math.ceil((t1 - t0) / dt - 1e-9))
+    fingerprint = {"n": n, "t0": float(t0), "t1": float(t1), "dt": float(dt), "solver": repr(solver)}
+
+    run = _RunState(k=0, t=float(t0), x=x0, params=params, stats=Stats(), ts=[float(t0)], xs=[x0.copy()],
+                    ps=[params] if save_params else None, observed=_observation(observe, t0, x0, params, None))
+    kstar = None
+    if resume and os.path.exists(checkpoint):
+        run, kstar = _RunState.load(checkpoint, fingerprint)
+    stats = run.stats
+    previous_wall = stats.wall_time_s
+    stepper = solver.init(Problem(residual, scale, stats, jacobian, sparsity))
+    if kstar is not None:
+        stepper.fact = Factorization(kstar)
+        stats.resumes += 1
     saves = _save_steps(t0, dt, n_steps, save_every, save_at)
-    ts, xs, ps = [t0], [x0.copy()], [params] if save_params else None
-    bar = _progress_bar(n_steps, t1 - t0, progress)
-    x, t = x0, float(t0)
+    bar = _progress_bar(n_steps, t1 - t0, progress, initial=run.k)
 
     def advance(x, t, h, step, depth):
         """One step of size h, split in halves on failure."""
         try:
-            return stepper.step(step, x, jnp.float64(t + h), jnp.float64(h), params)
+            return stepper.step(step, x, jnp.float64(t + h), jnp.float64(h), run.params)
         except StepFailure:
             if depth >= max_dt_halvings:
                 raise
@@ -179,36 +207,101 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
             xm = advance(x, t, h / 2, step, depth + 1)
             return advance(xm, t + h / 2, h / 2, step, depth + 1)
 
+    def save_checkpoint():
+        stats.close(previous_wall + time.perf_counter() - start)
+        run.dump(checkpoint, fingerprint, getattr(stepper.fact, "matrix", None) if stepper.reuses_kstar else None)
+
     try:
-        for k in range(1, n_steps + 1):
-            t_new = t0 + k * dt if k < n_steps else float(t1)
-            x_new = advance(x, t, t_new - t, k, 0)
-            r = stepper.problem.residual(x_new, x, jnp.float64(t_new), jnp.float64(t_new - t), params)
-            stats.residual_norm.append(float(np.max(np.abs(r))))
-            stats.time_steps += 1
-            x, t = x_new, t_new
-            if after_step is not None:
-                params = after_step(t, x, params)
-            if k in saves:
-                ts.append(t)
-                xs.append(x.copy())
-                if save_params:
-                    ps.append(params)
-            if callback is not None:
-                callback(t, x, stats)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(t=f"{t:.4g}", factorizations=stats.factorizations, refresh=False)
+        with sigterm_as_interrupt():
+            for k in range(run.k + 1, n_steps + 1):
+                t_new = t0 + k * dt if k < n_steps else float(t1)
+                x_new = advance(run.x, run.t, t_new - run.t, k, 0)
+                r = stepper.problem.residual(x_new, run.x, jnp.float64(t_new), jnp.float64(t_new - run.t), run.params)
+                stats.residual_norm.append(float(np.max(np.abs(r))))
+                stats.time_steps += 1
+                params_new = run.params if after_step is None else after_step(t_new, x_new, run.params)
+                run.advance(k, t_new, x_new, params_new, saved=k in saves, observe=observe)
+                if callback is not None:
+                    callback(t_new, x_new, stats)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(t=f"{t_new:.4g}", factorizations=stats.factorizations, refresh=False)
+                if checkpoint_every and k % checkpoint_every == 0:
+                    save_checkpoint()
+    except BaseException:
+        if checkpoint is not None:
+            save_checkpoint()  # keep everything computed up to the last accepted step
+        raise
     finally:
         if bar is not None:
             bar.close()
-        stats.close(time.perf_counter() - start)
-    return Solution(ts=np.asarray(ts), xs=np.asarray(xs), stats=stats, params=ps)
+        stats.close(previous_wall + time.perf_counter() - start)
+    if checkpoint is not None:
+        save_checkpoint()
+    observed = None if observe is None else {key: np.asarray(v) for key, v in run.observed.items()}
+    return Solution(ts=np.asarray(run.ts), xs=np.asarray(run.xs), stats=stats, params=run.ps, observed=observed)
 
 
-def _progress_bar(n_steps, span, enabled):
+def _observation(observe, t, x, params, observed):
+    """Append ``observe(t, x, params)`` to the lists of ``observed`` (created on first call)."""
+    if observe is None:
+        return None
+    values = observe(t, x, params)
+    if observed is None:
+        observed = {"t": [], **{key: [] for key in values}}
+    observed["t"].append(float(t))
+    for key, value in values.items():
+        observed[key].append(np.asarray(value))
+    return observed
+
+
+@dataclasses.dataclass
+class _RunState:
+    """Everything a run carries from step to step (and what a checkpoint stores)."""
+
+    k: int
+    t: float
+    x: np.ndarray
+    params: object
+    stats: Stats
+    ts: list
+    xs: list
+    ps: list | None
+    observed: dict | None
+
+    def advance(self, k, t, x, params, *, saved: bool, observe) -> None:
+        """Record an accepted step."""
+        self.k, self.t, self.x, self.params = k, t, x, params
+        if saved:
+            self.ts.append(t)
+            self.xs.append(x.copy())
+            if self.ps is not None:
+                self.ps.append(params)
+        self.observed = _observation(observe, t, x, params, self.observed)
+
+    def dump(self, path, fingerprint: dict, kstar) -> None:
+        """Write the state (and the current K* matrix) to a checkpoint file."""
+        payload = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        payload.update(fingerprint=fingerprint, kstar=kstar, params=to_host(self.params))
+        payload["ps"] = None if self.ps is None else [to_host(p) for p in self.ps]
+        write_atomic(path, payload)
+
+    @classmethod
+    def load(cls, path, fingerprint: dict):
+        """Read a checkpoint; refuse one written by a different run."""
+        payload = read(path)
+        if payload["fingerprint"] != fingerprint:
+            raise InputError(
+                f"checkpoint {path} belongs to another run ({payload['fingerprint']}), not to this one "
+                f"({fingerprint}); use a fresh output directory or the same settings"
+            )
+        fields = {f.name: payload[f.name] for f in dataclasses.fields(cls)}
+        return cls(**fields), payload["kstar"]
+
+
+def _progress_bar(n_steps, span, enabled, initial=0):
     if not enabled:
         return None
     from tqdm.auto import tqdm
 
-    return tqdm(total=n_steps, unit="step", desc=f"t span {span:.4g} s", dynamic_ncols=True)
+    return tqdm(total=n_steps, initial=initial, unit="step", desc=f"t span {span:.4g} s", dynamic_ncols=True)

@@ -44,6 +44,7 @@ class Factorization:
             if np.any(np.diag(lu_piv[0]) == 0.0):
                 raise SingularMatrixError("dense LU: matrix is exactly singular")
             self._solve = lambda b: scipy.linalg.lu_solve(lu_piv, b, check_finite=False)
+        self.matrix = matrix  # kept so that a checkpoint can re-create these exact factors
         self.shape = matrix.shape
 
     def solve(self, rhs) -> np.ndarray:

@@ -165,6 +165,8 @@ class ANM:
 
 
 class _ANMStepper:
+    reuses_kstar = True
+
     def __init__(self, opts: ANM, problem: Problem):
         self.opts = opts
         self.problem = problem
@@ -262,6 +264,7 @@ class _NewtonStepper:
         self.opts = opts
         self.problem = problem
         self.reuse = reuse
+        self.reuses_kstar = reuse
         self.fact = None
 
     def step(self, step: int, x_old, t, dt, params):

@@ -15,7 +15,8 @@ class Stats:
 
     Counters are totals over the run.  ``series_orders`` counts evaluations of the jet
     series (one per order and per series); ``residual_evaluations`` counts plain residual
-    evaluations (series evaluations excluded).  ``amax`` holds, for ANM, the validity range
+    evaluations (series evaluations excluded).  ``resumes`` counts continuations from a
+    checkpoint (each re-factorises the stored K* once, not counted in ``factorizations``).  ``amax`` holds, for ANM, the validity range
     of the accepted series of each time step; ``residual_norm`` the max-norm of the step
     residual at each accepted state.  ``wall_time`` splits ``wall_time_s`` into
     ``jacobian``, ``factorize``, ``series``, ``solve`` (triangular solves) and ``other``.
@@ -29,6 +30,7 @@ class Stats:
     newton_iterations: int = 0
     substeps: int = 0
     dt_halvings: int = 0
+    resumes: int = 0
     amax: list = dataclasses.field(default_factory=list)
     residual_norm: list = dataclasses.field(default_factory=list)
     wall_time_s: float = 0.0
