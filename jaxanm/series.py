@@ -52,11 +52,12 @@ def taylor_coefficients(f: Callable, x0, terms: Sequence, *args) -> list:
     x0 = jnp.asarray(x0, dtype=jnp.float64)
     if len(terms) == 0:
         return [jnp.asarray(f(x0, *args))]
-    terms = jnp.stack([jnp.asarray(t, dtype=jnp.float64) for t in terms])
-    if terms.shape[1:] != x0.shape:
+    shapes = [jnp.shape(t) for t in terms]
+    if any(shape != x0.shape for shape in shapes):
         raise ValueError(
             f"taylor_coefficients: every term must have the shape of x0 {x0.shape}, "
-            f"got {terms.shape[1:]}; pass one array per order shaped like x0."
+            f"got {shapes}; pass one array per order shaped like x0."
         )
+    terms = jnp.stack([jnp.asarray(t, dtype=jnp.float64) for t in terms])
     f0, fs = jax.jit(path_coefficients, static_argnums=0)(f, x0, terms, *args)
     return [f0, *list(fs)]
