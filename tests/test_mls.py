@@ -1,0 +1,318 @@
+"""Tests of jaxanm.mls: MLS stencils against independent references.
+
+References: exact polynomial reproduction (quadratic fields), analytic derivatives of a smooth
+field with fitted convergence slopes, partition of unity, and direct sums for the helpers.
+The compiled kernel depends on the stencil width only; the tests share m = 40 (one compilation)
+to keep the file fast.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.experimental import jet
+
+from jaxanm import mls
+
+R = 6e-3  # plate radius R2 of the paper (m)
+DR = 3.75e-4  # point spacing dr of the paper (m)
+H = 3 * DR  # influence radius h_I = 3 dr
+M = 40  # stencil width shared by the disc clouds (one compilation)
+NAMES = ("phi", "dx", "dy", "dxx", "dxy", "dyy")
+
+
+def disc_grid(dr=DR, radius=R):
+    """Square grid of spacing dr restricted to the disc r <= radius (797 points for the paper)."""
+    n = int(np.ceil(radius / dr))
+    g = np.arange(-n, n + 1) * dr
+    x, y = np.meshgrid(g, g)
+    p = np.c_[x.ravel(), y.ravel()]
+    return p[np.hypot(p[:, 0], p[:, 1]) <= radius * (1 + 1e-12)]
+
+
+def jitter(points, dr, amplitude, seed):
+    """Points moved by independent uniform offsets in [-amplitude, amplitude] * dr."""
+    rng = np.random.default_rng(seed)
+    return points + rng.uniform(-amplitude, amplitude, points.shape) * dr
+
+
+def apply(st, name, f):
+    """Direct numpy evaluation of sum_k w[i, k] f[index[i, k]] (independent of the helpers)."""
+    w = np.asarray(getattr(st, name))
+    return (w * f[np.asarray(st.index)]).sum(axis=1)
+
+
+@pytest.fixture(scope="module")
+def clouds():
+    """The paper's disc grid and a jittered copy (+-dr/4), with their stencils."""
+    regular = disc_grid()
+    jittered = jitter(regular, DR, 0.25, seed=0)
+    return {
+        "regular": (regular, mls.build_stencils(regular, H, m_max=M)),
+        "jittered": (jittered, mls.build_stencils(jittered, H, m_max=M)),
+    }
+
+
+def quadratic(points, a):
+    """Quadratic field in x/R, y/R and its exact derivatives (same order as NAMES)."""
+    x, y = points[:, 0] / R, points[:, 1] / R
+    one = np.ones_like(x)
+    return (
+        a[0] + a[1] * x + a[2] * y + a[3] * x * x + a[4] * x * y + a[5] * y * y,
+        (a[1] + 2 * a[3] * x + a[4] * y) / R,
+        (a[2] + a[4] * x + 2 * a[5] * y) / R,
+        2 * a[3] / R**2 * one,
+        a[4] / R**2 * one,
+        2 * a[5] / R**2 * one,
+    )
+
+
+def test_disc_grid_matches_paper_setup(clouds):
+    points, st = clouds["regular"]
+    assert points.shape == (797, 2)
+    assert st.index.shape == (797, M) and st.index.dtype == jnp.int32
+    for name in NAMES:
+        assert getattr(st, name).shape == (797, M)
+        assert getattr(st, name).dtype == jnp.float64
+
+
+@pytest.mark.parametrize("cloud", ["regular", "jittered"])
+def test_quadratic_fields_reproduced(clouds, cloud):
+    points, st = clouds[cloud]
+    interior = np.hypot(points[:, 0], points[:, 1]) <= R - H
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        exact = quadratic(points, rng.normal(size=6))
+        f = exact[0]
+        for name, ref in zip(NAMES, exact):
+            err = np.abs(apply(st, name, f) - ref)
+            scale = np.abs(ref).max()
+            # Interior points (support not cut by the edge): round-off level.
+            assert err[interior].max() <= 1e-10 * scale, (cloud, name)
+            # Edge points have one-sided supports under the narrow c = 0.2 Gaussian: their
+            # moment matrices have rcond ~ 5e-5 (regular) to ~ 1e-6 (jittered), and they lose
+            # those digits (measured: second derivatives 1e-8 / 1e-6 relative, first 1e-11 /
+            # 2e-10).  (Diffuse derivatives, which drop the derivatives of the weight, would
+            # reproduce quadratics too: test_derivatives_are_those_of_phi tells them apart.)
+            bound = {"phi": 1e-13, "dx": 1e-8, "dy": 1e-8}.get(name, 1e-4)
+            assert err.max() <= bound * scale, (cloud, name)
+
+
+@pytest.mark.parametrize("cloud", ["regular", "jittered"])
+def test_partition_of_unity(clouds, cloud):
+    _, st = clouds[cloud]
+    assert np.abs(np.asarray(st.phi).sum(1) - 1.0).max() <= 1e-10
+    for name in NAMES[1:]:
+        w = np.asarray(getattr(st, name))
+        # Relative to the size of the terms summed (derivative weights scale as 1/h, 1/h^2).
+        assert np.all(np.abs(w.sum(1)) <= 1e-10 * np.abs(w).sum(1)), (cloud, name)
+
+
+def test_padding_is_own_index_with_zero_weights(clouds):
+    points, st = clouds["regular"]
+    index = np.asarray(st.index)
+    own = np.arange(len(points))[:, None]
+    assert np.all(index[:, :1] == own)  # nearest first: the point itself
+    pad = np.zeros_like(index, dtype=bool)
+    pad[:, 1:] = index[:, 1:] == own
+    # At most 29 grid nodes lie within 3 dr (i^2 + j^2 <= 9): the rest of the M slots is padding.
+    assert np.all(pad.sum(1) >= M - 29)
+    for name in NAMES:
+        assert np.all(np.asarray(getattr(st, name))[pad] == 0.0), name
+
+
+def test_default_m_max_rounds_up_the_largest_neighbour_count(clouds):
+    points, _ = clouds["regular"]
+    st = mls.build_stencils(points, 3.3 * DR)
+    # 37 grid nodes within 3.3 dr (i^2 + j^2 <= 10.89), rounded up to a multiple of 8.
+    assert st.index.shape[1] == M
+
+
+def test_evaluate_at_nodes_equals_build_stencils(clouds):
+    points, st = clouds["jittered"]
+    at = mls.evaluate_at(points, H, points, m_max=M)
+    for name in ("index",) + NAMES:
+        np.testing.assert_array_equal(np.asarray(getattr(at, name)), np.asarray(getattr(st, name)))
+
+
+def dense(st, n_nodes):
+    """Stencils as dense (T, n_nodes) matrices, one per field of NAMES."""
+    rows = np.repeat(np.arange(st.index.shape[0]), st.index.shape[1])
+    out = {}
+    for name in NAMES:
+        mat = np.zeros((st.index.shape[0], n_nodes))
+        np.add.at(mat, (rows, np.asarray(st.index).ravel()), np.asarray(getattr(st, name)).ravel())
+        out[name] = mat
+    return out
+
+
+def test_derivatives_are_those_of_phi(clouds):
+    """Full MLS derivatives: autodiff weights against finite differences of phi(x) itself.
+
+    phi_j(x) is evaluated (evaluate_at) at shifted targets around 40 interior nodes of the
+    jittered cloud; central differences with steps 1e-5 h (first) and 1e-4 h (second), whose
+    errors converge as step^2 down to the tolerances used (measured 2e-9 and 8e-7).
+    """
+    points, _ = clouds["jittered"]
+    n = len(points)
+    inside = np.flatnonzero(np.hypot(points[:, 0], points[:, 1]) <= R - 2 * H)
+    targets = points[np.random.default_rng(4).choice(inside, 40, replace=False)]
+
+    def phi_at(shift):
+        return dense(mls.evaluate_at(points, H, targets + shift, m_max=M), n)["phi"]
+
+    at = dense(mls.evaluate_at(points, H, targets, m_max=M), n)
+    ex, ey = np.array([1.0, 0.0]), np.array([0.0, 1.0])
+    d1, d2 = 1e-5 * H, 1e-4 * H
+    fd = {
+        "dx": (phi_at(d1 * ex) - phi_at(-d1 * ex)) / (2 * d1),
+        "dy": (phi_at(d1 * ey) - phi_at(-d1 * ey)) / (2 * d1),
+        "dxx": (phi_at(d2 * ex) - 2 * at["phi"] + phi_at(-d2 * ex)) / d2**2,
+        "dyy": (phi_at(d2 * ey) - 2 * at["phi"] + phi_at(-d2 * ey)) / d2**2,
+        "dxy": (phi_at(d2 * (ex + ey)) - phi_at(d2 * (ex - ey)) - phi_at(d2 * (ey - ex))
+                + phi_at(-d2 * (ex + ey))) / (4 * d2**2),
+    }
+    for name, ref in fd.items():
+        tol = 1e-7 if name in ("dx", "dy") else 1e-5
+        assert np.abs(at[name] - ref).max() <= tol * np.abs(ref).max(), name
+
+
+def field(x, y):
+    """sin(3x) exp(y) and its derivatives (same order as NAMES)."""
+    s, c, e = np.sin(3 * x), np.cos(3 * x), np.exp(y)
+    return s * e, 3 * c * e, s * e, -9 * s * e, 3 * c * e, s * e
+
+
+def test_convergence_rates():
+    """Fitted slopes of RMS error vs dr for sin(3x) exp(y) on the unit square, h = 3 dr.
+
+    Evaluation points in [0.3, 0.7]^2 (away from the boundary), 5 refinements
+    dr = 1/8 .. 1/128 (evaluate_at, 797 targets).
+    Theory for a quadratic basis: value O(dr^3), first derivatives O(dr^2), second O(dr).
+    Measured (value / first / second derivatives):
+      jittered cloud, at nodes:   2.9 / 2.0 2.1 / 1.0 0.9 1.2
+      regular grid, off nodes:    3.0 / 2.0 2.0 / 1.0 1.1 1.0
+      regular grid, at nodes:     4.0 / 2.0 2.0 / 2.0 2.0 2.0 -- superconvergence: the stencil
+        is point-symmetric, odd error terms cancel (as for central differences).
+    Asserted: slope > theoretical order - 0.3 (superconvergent orders for the regular nodes).
+    """
+    drs = np.array([1 / 8, 1 / 16, 1 / 32, 1 / 64, 1 / 128])
+    cases = {
+        "jittered-nodes": (0.25, True, (3, 2, 2, 1, 1, 1)),
+        "regular-offnodes": (0.0, False, (3, 2, 2, 1, 1, 1)),
+        "regular-nodes": (0.0, True, (4, 2, 2, 2, 2, 2)),
+    }
+    rng = np.random.default_rng(0)
+    for case, (amplitude, at_nodes, orders) in cases.items():
+        errors = []
+        for dr in drs:
+            g = np.arange(0.0, 1.0 + 1e-9, dr)
+            x, y = np.meshgrid(g, g)
+            points = jitter(np.c_[x.ravel(), y.ravel()], dr, amplitude, seed=int(1 / dr))
+            if at_nodes:
+                inside = np.flatnonzero(np.all((points > 0.3) & (points < 0.7), axis=1))
+                targets = points[rng.choice(inside, 797)]
+            else:
+                targets = rng.uniform(0.3, 0.7, (797, 2))
+            st = mls.evaluate_at(points, 3 * dr, targets, m_max=M)
+            f = field(points[:, 0], points[:, 1])[0]
+            exact = field(targets[:, 0], targets[:, 1])
+            errors.append([np.sqrt(np.mean((apply(st, n, f) - e) ** 2) / np.mean(e**2))
+                           for n, e in zip(NAMES, exact)])
+        slopes = np.polyfit(np.log(drs), np.log(np.array(errors)), 1)[0]
+        for name, slope, order in zip(NAMES, slopes, orders):
+            assert slope > order - 0.3, (case, name, slope)
+        assert np.array(errors)[-1, 3:].max() < 0.05, case  # second derivatives do converge
+
+
+def test_helpers_match_direct_sums_and_trace(clouds):
+    points, st = clouds["jittered"]
+    f = np.sin(points[:, 0] / R) * np.cos(points[:, 1] / R)
+    f2 = np.stack([f, 2 * f], axis=1)
+    np.testing.assert_allclose(mls.value(st, f), apply(st, "phi", f), rtol=1e-13)
+    # Results are float64 jax arrays; arithmetic on them outside enable_x64 would be float32.
+    g = np.asarray(mls.grad(st, f))
+    assert g.shape == (797, 2)
+    np.testing.assert_allclose(g[:, 0], apply(st, "dx", f), rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(g[:, 1], apply(st, "dy", f), rtol=1e-12, atol=1e-9)
+    hess = np.asarray(mls.hessian(st, f))
+    assert hess.shape == (797, 2, 2)
+    np.testing.assert_allclose(hess[:, 0, 1], hess[:, 1, 0])
+    np.testing.assert_allclose(hess[:, 1, 1], apply(st, "dyy", f), rtol=1e-12, atol=1e-5)
+    lap = np.asarray(mls.laplacian(st, f))
+    np.testing.assert_allclose(lap, hess[:, 0, 0] + hess[:, 1, 1], rtol=1e-12, atol=1e-5)
+    assert mls.grad(st, f2).shape == (797, 2, 2)
+    lap2 = np.asarray(mls.laplacian(st, f2))
+    np.testing.assert_allclose(lap2[:, 1], 2 * lap, rtol=1e-12, atol=1e-5)
+
+    # Stencils is a pytree argument of jit (values traced), and the helpers are jet-compatible.
+    assert len(jax.tree_util.tree_leaves(st)) == 7
+    with jax.enable_x64(True):  # a user's jit traces in float64 only inside this context
+        jitted = jax.jit(lambda s, u: mls.laplacian(s, u**2))
+        np.testing.assert_allclose(jitted(st, f), mls.laplacian(st, f**2), rtol=1e-12, atol=1e-5)
+        u0, du = jnp.asarray(f), jnp.asarray(f2[:, 1])
+        primal, (series,) = jet.jet(lambda u: mls.laplacian(st, u), (u0,), ((du,),))
+        assert primal.dtype == jnp.float64
+    np.testing.assert_allclose(series, mls.laplacian(st, du), rtol=1e-12, atol=1e-5)
+
+
+def test_moved_cloud_does_not_retrace(clouds):
+    points, st = clouds["regular"]
+    before = mls._kernel._cache_size()
+    for seed in range(3):
+        moved = jitter(points, DR, 0.1, seed=10 + seed)
+        st2 = mls.build_stencils(moved, H, m_max=st.index.shape[1])
+        assert st2.index.shape == st.index.shape
+    # Different nodes (count and positions) at the same number of targets: no retrace either.
+    mls.evaluate_at(disc_grid(DR / 2), H / 2, points, m_max=M)
+    assert mls._kernel._cache_size() == before
+
+
+def line(offset=0.0):
+    """797 points spaced dr along a line at 30 degrees, moved off it by random offsets of size
+    offset * dr (0: collinear).  Not axis-aligned: the equilibration of the moment matrix makes
+    an axis-aligned thin cloud harmless, a slanted one stays ill-conditioned.
+
+    With m_max = M these error cases reuse the compiled kernel.
+    """
+    rng = np.random.default_rng(2)
+    along = np.arange(797) * DR
+    across = offset * DR * rng.uniform(-1.0, 1.0, 797)
+    c, s = np.cos(np.pi / 6), np.sin(np.pi / 6)
+    return np.c_[c * along - s * across, s * along + c * across]
+
+
+@pytest.mark.parametrize(
+    "points, h, kwargs, match",
+    [
+        (np.zeros((5, 3)), 1.0, {}, r"\(N, 2\).*\(5, 3\)"),
+        (np.array([[0.0, 0.0], [np.nan, 1.0]]), 1.0, {}, r"finite: row 1"),
+        (disc_grid(radius=2e-3), 0.0, {}, r"h must be finite and > 0: h\[0\] = 0"),
+        (disc_grid(radius=2e-3), np.ones(3), {}, r"scalar or have shape \(89,\)"),
+        (disc_grid(radius=2e-3), DR / 2, {},
+         r"point 0 .* has 1 node\(s\) within h.*at least 6.*increase h"),
+        (disc_grid(radius=2e-3), H, {"m_max": 4}, r"m_max must be an integer >= 6"),
+        (disc_grid(radius=2e-3), H, {"q": 1.5}, r"q must be a positive integer"),
+        (disc_grid(radius=2e-3), H, {"c": -1.0}, r"c must be finite and > 0"),
+        (np.r_[disc_grid(radius=2e-3), [[0.0, 0.0]]], H, {}, r"points \d+ and \d+ coincide"),
+        (line(), 2 * H, {"m_max": M},
+         r"point 0 .* singular or ill-conditioned.*7 nodes within.*increase h"),
+        (line(offset=1e-7), 2 * H, {"m_max": M},
+         r"point \d+ .* singular or ill-conditioned \(reciprocal condition number"),
+    ],
+)
+def test_errors_are_informative(points, h, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        mls.build_stencils(points, h, **kwargs)
+
+
+def test_evaluate_at_errors_name_the_target():
+    points = disc_grid(radius=2e-3)
+    with pytest.raises(ValueError, match=r"target 1 .* has 0 node\(s\) within h"):
+        mls.evaluate_at(points, H, np.array([[0.0, 0.0], [1.0, 1.0]]))
+    with pytest.raises(ValueError, match=r"target 0 .* has 0 node\(s\) within h"):
+        mls.evaluate_at(points, H, np.array([[1.0, 1.0]]))
+    with pytest.raises(ValueError, match=r"targets must be an \(N, 2\) array"):
+        mls.evaluate_at(points, H, np.zeros(4))
