@@ -1,0 +1,24 @@
+"""Friction stir welding (paper section 4): scenes, the step residual of their effects, runs.
+
+- :mod:`~jaxanm.fsw.scene`: typed, validated scenes (Python, TOML, ``--set`` overrides);
+- :mod:`~jaxanm.fsw.geometry`: point cloud and MLS stencils split at the tool edge;
+- :mod:`~jaxanm.fsw.model`: the strong-form MLS residual of the effects a scene lists;
+- :mod:`~jaxanm.fsw.simulate`: :func:`run` a scene to an :class:`FSWResult`.
+"""
+
+from .model import Model, make_model
+from .scene import EFFECTS, Scene, SceneError, load_scene, override_keys, shipped_scenes
+from .simulate import FSWResult, run
+
+__all__ = [
+    "EFFECTS",
+    "FSWResult",
+    "Model",
+    "Scene",
+    "SceneError",
+    "load_scene",
+    "make_model",
+    "override_keys",
+    "run",
+    "shipped_scenes",
+]

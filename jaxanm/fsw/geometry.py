@@ -1,0 +1,148 @@
+"""Point cloud of the FSW disc and its MLS stencils, split at the tool edge.
+
+The disc r <= R2 holds the tool (r <= R1) and the plate (R1 <= r <= R2).  Velocity and
+temperature have a kink at r = R1 (rigid rotation inside, power-law shear flow outside; the
+conductivity jumps from 36 to 140 W/m/K), which a smooth MLS approximation across the edge
+cannot represent.  So the cloud is split into two subdomains, each approximated by its own
+MLS stencils (one-sided near the edge):
+
+- the tool: ``TOOL`` points (r < R1) and ``TOOL_EDGE`` points on r = R1;
+- the plate: ``PLATE_EDGE`` points on r = R1 (coincident with the ``TOOL_EDGE`` points, one
+  partner each), ``PLATE`` points (R1 < r < R2) and ``RING`` points on r = R2.
+
+A stencil never mixes the two subdomains; the coincident edge pairs carry the interface
+conditions (the model's rows: equal temperature, equal heat flux, sticking velocity).
+
+Points are ordered ``[TOOL, TOOL_EDGE | PLATE_EDGE, PLATE, RING]``: the tool subdomain is the
+index range ``[0, n_tool)``, the plate ``[n_tool, N)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .. import mls
+from .._x64 import entry_point
+from .scene import Geometry
+
+__all__ = ["Cloud", "build_cloud", "build_stencils", "evaluate_stencils",
+           "TOOL", "TOOL_EDGE", "PLATE_EDGE", "PLATE", "RING"]
+
+TOOL, TOOL_EDGE, PLATE_EDGE, PLATE, RING = range(5)
+"""Point kinds (the row each point carries in the model)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Cloud:
+    """The initial point cloud.
+
+    Attributes
+    ----------
+    points : (N, 2) float64
+        Coordinates (m).
+    kind : (N,) int32
+        ``TOOL``, ``TOOL_EDGE``, ``PLATE_EDGE``, ``PLATE`` or ``RING``.
+    partner : (N,) int32
+        The coincident point across the tool edge for edge points, the point itself otherwise.
+    material : (N,) int32
+        0 tool, 1 plate y > 0 ("blue"), 2 plate y < 0 ("red").
+    n_tool : int
+        Number of tool-subdomain points (``TOOL`` and ``TOOL_EDGE``), which come first.
+    """
+
+    points: np.ndarray
+    kind: np.ndarray
+    partner: np.ndarray
+    material: np.ndarray
+    n_tool: int
+
+    @property
+    def size(self) -> int:
+        """Number of points N."""
+        return self.points.shape[0]
+
+
+def _ring(radius: float, dr: float) -> np.ndarray:
+    """An even number (about 2 pi r / dr, at least 6) of points on a circle, none on y = 0."""
+    count = max(6, 2 * round(math.pi * radius / dr))
+    theta = 2 * math.pi * (np.arange(count) + 0.5) / count
+    return radius * np.stack([np.cos(theta), np.sin(theta)], axis=1)
+
+
+def _polar_interior(g: Geometry) -> tuple[np.ndarray, np.ndarray]:
+    """Tool interior (rings and centre) and plate interior rings of the polar layout."""
+    k_tool = max(1, round(g.R1 / g.dr))
+    tool = [np.zeros((1, 2))] + [_ring(g.R1 * j / k_tool, g.dr) for j in range(1, k_tool)]
+    k_plate = round((g.R2 - g.R1) / g.dr)
+    plate = [_ring(g.R1 + (g.R2 - g.R1) * j / k_plate, g.dr) for j in range(1, k_plate)]
+    return np.concatenate(tool), np.concatenate(plate) if plate else np.zeros((0, 2))
+
+
+def _grid_interior(g: Geometry) -> tuple[np.ndarray, np.ndarray]:
+    """Square grid (nodes at half-integer multiples of dr) clipped dr/2 away from r = R1, R2."""
+    k = math.ceil(g.R2 / g.dr) + 1
+    axis = (np.arange(-k, k) + 0.5) * g.dr
+    xy = np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2)
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    tool = xy[r < g.R1 - 0.5 * g.dr]
+    plate = xy[(r > g.R1 + 0.5 * g.dr) & (r < g.R2 - 0.5 * g.dr)]
+    return tool, plate
+
+
+def build_cloud(g: Geometry) -> Cloud:
+    """The point cloud of the scene geometry (layout ``polar`` or ``grid``, see :class:`Geometry`)."""
+    tool, plate = _polar_interior(g) if g.layout == "polar" else _grid_interior(g)
+    edge = _ring(g.R1, g.dr)
+    ring = _ring(g.R2, g.dr)
+    parts = [(tool, TOOL), (edge, TOOL_EDGE), (edge, PLATE_EDGE), (plate, PLATE), (ring, RING)]
+    points = np.concatenate([p for p, _ in parts])
+    kind = np.concatenate([np.full(len(p), k, dtype=np.int32) for p, k in parts])
+    n_tool = len(tool) + len(edge)
+    partner = np.arange(len(points), dtype=np.int32)
+    tool_edge = np.arange(len(tool), n_tool)
+    partner[tool_edge] = tool_edge + len(edge)
+    partner[tool_edge + len(edge)] = tool_edge
+    material = np.where(kind <= TOOL_EDGE, 0, np.where(points[:, 1] > 0, 1, 2)).astype(np.int32)
+    return Cloud(points=points, kind=kind, partner=partner, material=material, n_tool=n_tool)
+
+
+def _apart(points: np.ndarray, n_tool: int, g: Geometry) -> np.ndarray:
+    """The cloud with the tool subdomain shifted far away, so that no stencil spans both.
+
+    MLS works in coordinates local to each evaluation point and scaled by h, so a rigid shift
+    of a subdomain changes no shape function (beyond round-off ~ 1e-16 * shift / h); it lets
+    one neighbour search and one compiled kernel serve both subdomains.
+    """
+    shifted = np.array(points, dtype=np.float64)
+    shifted[:n_tool, 0] += _shift(g)
+    return shifted
+
+
+def _shift(g: Geometry) -> float:
+    """Distance the tool subdomain is moved: beyond the disc and any influence radius."""
+    return 4.0 * (g.R2 + g.h_factor * g.dr)
+
+
+@entry_point
+def build_stencils(points: np.ndarray, n_tool: int, g: Geometry, m_max: int | None = None) -> mls.Stencils:
+    """MLS stencils of the cloud: tool ``[0, n_tool)`` and plate nodes never share a stencil.
+
+    ``m_max`` fixes the stencil width (pass ``st.index.shape[1]`` of the first build when
+    rebuilding a moved cloud, so that shapes, and compiled code, stay the same).
+    """
+    return mls.build_stencils(_apart(points, n_tool, g), g.h_factor * g.dr, m_max=m_max, c=g.c, q=g.q)
+
+
+@entry_point
+def evaluate_stencils(points: np.ndarray, n_tool: int, g: Geometry, targets: np.ndarray) -> mls.Stencils:
+    """MLS stencils at arbitrary ``targets`` (probes, sections, tracers) of the current cloud.
+
+    Targets with r < R1 are approximated from the tool nodes, the others from the plate nodes
+    (the same one-sided approximation as the model uses).  Returned stencils index the cloud.
+    """
+    targets = np.array(targets, dtype=np.float64).reshape(-1, 2)
+    targets[np.hypot(targets[:, 0], targets[:, 1]) < g.R1, 0] += _shift(g)
+    return mls.evaluate_at(_apart(points, n_tool, g), g.h_factor * g.dr, targets, c=g.c, q=g.q)

@@ -1,0 +1,334 @@
+"""The FSW step residual: strong-form MLS collocation of the effects a scene lists.
+
+Unknowns are the MLS nodal parameters of the fields the effects need, stacked field by field
+in a flat vector ``[u (N), v (N), T (N)]`` (an isothermal scene has only ``[u, v]``, a pure
+conduction scene only ``[T]``).  Values and derivatives at the collocation points (every point
+of the cloud) come from the stencils: ``sum_k w[i, k] f[index[i, k]]``.
+
+Momentum (effect ``viscous``, paper eqs. 1, 2, 8-10), written pointwise with second
+derivatives so that the Jacobian is one stencil wide::
+
+    rho dV/dt = div sigma = (lambda + mu) grad(div V) + mu Lap V + 2 epsdot . grad mu
+    mu = K T^A epsbar_reg^(n-1) / 3,   epsbar_reg^2 = epsbar^2 + eps0^2,
+    epsbar^2 = 2/3 epsdot : epsdot,
+    grad mu = mu [ (n-1)/2 grad(epsbar^2) / epsbar_reg^2 + A grad T / T ]
+
+The momentum rows are this balance divided by the local viscosity mu (> 0), which leaves the
+discrete solution unchanged but removes the factor mu ~ epsbar^(n-1) that spans orders of
+magnitude: ``div sigma / mu = (lambda/mu + 1) grad div V + Lap V + 2 epsdot . grad(ln mu)`` is
+(for eps0 -> 0 and lambda = 0) homogeneous of degree one in V.  Newton's method and the ANM
+series then see a mildly nonlinear problem; with the balance itself, Newton diverges from
+rest for n <= 0.4 (the concave stress epsbar^n makes it overshoot where the flow is slow).
+
+Heat (effect ``conduction``, eq. 4-6)::
+
+    rho Cp dT/dt = k Lap T + 3 beta mu epsbar^2          (plate; tool: rho_t, Cp_t, k_t, no source)
+
+``d/dt`` is the implicit Euler difference at material points: with ``lagrangian`` the points
+move and the old values are those the points carry; with ``tracers`` (fixed points) the
+transport terms ``V . grad`` are added; with neither, points are fixed and there is no
+transport term.
+
+Rows per point kind (see :mod:`jaxanm.fsw.geometry`):
+
+============  ====================================  ============================================
+kind          velocity rows                         temperature row
+============  ====================================  ============================================
+TOOL          V = omega (-y, x)                     tool heat equation (or T = T0)
+TOOL_EDGE     V = omega (-y, x)                     T_tool = T_plate (or T = T0)
+PLATE_EDGE    V = omega (-y, x) (sticking)          k dT/dr = k_t dT_tool/dr (or k dT/dr = 0)
+PLATE         momentum balance                      plate heat equation
+RING          V = 0                                 -k dT/dN = h (T - Ta) (or dT/dN = 0)
+============  ====================================  ============================================
+
+(alternatives in brackets when ``tool_conduction`` / ``robin`` are absent).  The coincident
+tool-edge / plate-edge pair makes the conductivity jump exact in strong form: each side has
+its own one-sided approximation, and the pair carries the two interface conditions.
+
+Rows are scaled to comparable magnitudes (nothing else depends on it): Dirichlet rows by the
+field scale, balance rows by their largest diagonal term, flux rows by ``k T_s / dr``.
+
+The residual is jet-compatible: gathers, ``.at``-free elementwise algebra, ``jnp.where`` and
+non-integer powers only of strictly positive quantities (``epsbar_reg^2 >= eps0^2 > 0``,
+``T > 0``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse
+
+from .. import mls
+from .._x64 import entry_point
+from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, Cloud
+from .scene import Scene
+
+__all__ = ["Effects", "Model", "make_model", "mu_reference"]
+
+CONSTANTS = ("K", "A", "n", "eps0", "rho", "Cp", "k", "beta", "rho_t", "Cp_t", "k_t", "omega",
+             "h", "Ta", "T0", "lam", "dr", "U", "Ts", "mu_ref")
+"""Scalars of ``params["c"]``: material, tool, thermal data, penalty and the scales."""
+
+
+class Effects(NamedTuple):
+    """Which terms the residual assembles (static: a new combination compiles a new residual)."""
+
+    viscous: bool
+    inertia: bool
+    softening: bool
+    conduction: bool
+    tool_conduction: bool
+    dissipation: bool
+    robin: bool
+    lagrangian: bool
+    tracers: bool
+
+    @classmethod
+    def of(cls, scene: Scene) -> "Effects":
+        """The effect flags of a scene."""
+        return cls(*(scene.has(name) for name in cls._fields))
+
+    @property
+    def fields(self) -> tuple:
+        """Unknown fields, in layout order."""
+        return (("u", "v") if self.viscous else ()) + (("T",) if self.conduction else ())
+
+
+def mu_reference(scene: Scene) -> float:
+    """Viscosity scale ``K T0^A omega^(n-1) / 3`` (Pa s): mu at T0 and strain rate omega."""
+    m, th, tl = scene.material, scene.thermal, scene.tool
+    return m.K * th.T0 ** m.A * tl.omega ** (m.n - 1) / 3
+
+
+def _gather(st: mls.Stencils, f, weights):
+    """Values of several stencil operators applied to nodal parameters ``f`` (N,)."""
+    g = f[st.index]
+    return [jnp.sum(w * g, axis=1) for w in weights]
+
+
+def _old_value(flags: Effects, st, p, x_old, j, fold):
+    """Value of field ``j`` at the points at the previous time level.
+
+    Fixed points: the old nodal parameters on the current stencils.  Lagrangian points: the
+    values the points carry (``p["old"]``) when ``x_old`` is the state the cloud was last moved
+    with; otherwise (a halved sub-step on the same cloud) the old nodal parameters.
+    """
+    on_stencils = _gather(st, fold, [st.phi])[0]
+    if not flags.lagrangian:
+        return on_stencils
+    fresh = jnp.all(x_old == p["x_ref"])
+    return jnp.where(fresh, p["old"][:, j], on_stencils)
+
+
+def _momentum_rows(flags: Effects, st, p, x_old, dt, vel_nodal, vel_old_nodal, temp):
+    """u and v rows, and ``mu epsbar^2`` at the points (for the dissipation)."""
+    c, kind = p["c"], p["kind"]
+    ops = [st.phi, st.dx, st.dy, st.dxx, st.dxy, st.dyy]
+    u, ux, uy, uxx, uxy, uyy = _gather(st, vel_nodal[0], ops)
+    v, vx, vy, vxx, vxy, vyy = _gather(st, vel_nodal[1], ops)
+    exx, eyy, exy = ux, vy, 0.5 * (uy + vx)
+    e2 = (2.0 / 3.0) * (exx * exx + eyy * eyy + 2.0 * exy * exy)
+    er2 = e2 + c["eps0"] ** 2
+    alpha = temp[0] ** c["A"] if flags.softening else c["T0"] ** c["A"]
+    mu = c["K"] / 3.0 * alpha * er2 ** (0.5 * (c["n"] - 1.0))
+    # grad(ln mu) by the chain rule, from second derivatives of V (and grad T)
+    exy_x, exy_y = 0.5 * (uxy + vxx), 0.5 * (uyy + vxy)
+    de2x = (4.0 / 3.0) * (exx * uxx + eyy * vxy + 2.0 * exy * exy_x)
+    de2y = (4.0 / 3.0) * (exx * uxy + eyy * vyy + 2.0 * exy * exy_y)
+    lx = 0.5 * (c["n"] - 1.0) * de2x / er2
+    ly = 0.5 * (c["n"] - 1.0) * de2y / er2
+    if flags.softening:
+        T, Tx, Ty = temp[:3]
+        lx = lx + c["A"] * Tx / T
+        ly = ly + c["A"] * Ty / T
+    # div sigma / mu (see the module docstring)
+    lam_mu = c["lam"] / mu
+    fx = (lam_mu + 1.0) * (uxx + vxy) + (uxx + uyy) + 2.0 * (exx * lx + exy * ly)
+    fy = (lam_mu + 1.0) * (uxy + vyy) + (vxx + vyy) + 2.0 * (exy * lx + eyy * ly)
+    stiff = 1.0 + c["lam"] / c["mu_ref"]
+    if flags.inertia:
+        ax = (u - _old_value(flags, st, p, x_old, 0, vel_old_nodal[0])) / dt
+        ay = (v - _old_value(flags, st, p, x_old, 1, vel_old_nodal[1])) / dt
+        if flags.tracers:
+            ax = ax + u * ux + v * uy
+            ay = ay + u * vx + v * vy
+        fx = fx - c["rho"] / mu * ax
+        fy = fy - c["rho"] / mu * ay
+        stiff = stiff + c["rho"] * c["dr"] ** 2 / (c["mu_ref"] * dt)
+    sm = c["dr"] ** 2 / (c["U"] * stiff)
+    xy = p["xy"]
+    ub, vb = -c["omega"] * xy[:, 1], c["omega"] * xy[:, 0]
+    plate, ring = kind == PLATE, kind == RING
+    rows = [jnp.where(plate, -fx * sm, jnp.where(ring, u, u - ub) / c["U"]),
+            jnp.where(plate, -fy * sm, jnp.where(ring, v, v - vb) / c["U"])]
+    return rows, (u, v), mu * e2
+
+
+def _heat_rows(flags: Effects, st, p, x_old, dt, jT, T_old_nodal, temp, vel, mu_e2):
+    """T rows: heat equations, tool-edge interface conditions, the ring's edge condition."""
+    c, kind, partner, normal = p["c"], p["kind"], p["partner"], p["normal"]
+    T, Tx, Ty, lapT = temp
+    dTdt = (T - _old_value(flags, st, p, x_old, jT, T_old_nodal)) / dt
+    if flags.tracers:
+        dTdt = dTdt + vel[0] * Tx + vel[1] * Ty
+    plate_heat = c["rho"] * c["Cp"] * dTdt - c["k"] * lapT
+    if flags.dissipation:
+        plate_heat = plate_heat - 3.0 * c["beta"] * mu_e2
+    s_plate = c["dr"] ** 2 / (c["Ts"] * (c["k"] + c["rho"] * c["Cp"] * c["dr"] ** 2 / dt))
+    dTdn = Tx * normal[:, 0] + Ty * normal[:, 1]
+    s_flux = c["dr"] / (c["k"] * c["Ts"])
+    ring_row = c["k"] * dTdn
+    if flags.robin:
+        ring_row = ring_row + c["h"] * (T - c["Ta"])
+    if flags.tool_conduction:
+        tool_heat = c["rho_t"] * c["Cp_t"] * dTdt - c["k_t"] * lapT
+        s_tool = c["dr"] ** 2 / (c["Ts"] * (c["k_t"] + c["rho_t"] * c["Cp_t"] * c["dr"] ** 2 / dt))
+        tool_row = tool_heat * s_tool
+        tool_edge_row = (T - T[partner]) / c["Ts"]
+        plate_edge_row = (c["k"] * dTdn - c["k_t"] * dTdn[partner]) * s_flux
+    else:
+        tool_row = tool_edge_row = (T - c["T0"]) / c["Ts"]
+        plate_edge_row = c["k"] * dTdn * s_flux
+    return jnp.select(
+        [kind == TOOL, kind == TOOL_EDGE, kind == PLATE_EDGE, kind == PLATE, kind == RING],
+        [tool_row, tool_edge_row, plate_edge_row, plate_heat * s_plate, ring_row * s_flux])
+
+
+@functools.lru_cache(maxsize=None)
+def _residual_for(flags: Effects):
+    """The residual function of an effect combination (one function object per combination)."""
+    nf = len(flags.fields)
+
+    def residual(x, x_old, t, dt, p):
+        st = p["st"]
+        N = p["kind"].shape[0]
+        X, Xo = x.reshape(nf, N), x_old.reshape(nf, N)
+        rows, vel, mu_e2 = [], None, None
+        temp = _gather(st, X[-1], [st.phi, st.dx, st.dy, st.dxx + st.dyy]) if flags.conduction else None
+        if flags.viscous:
+            rows, vel, mu_e2 = _momentum_rows(flags, st, p, x_old, dt, X[:2], Xo[:2], temp)
+        if flags.conduction:
+            rows.append(_heat_rows(flags, st, p, x_old, dt, nf - 1, Xo[-1], temp, vel, mu_e2))
+        return jnp.concatenate(rows)
+
+    return residual
+
+
+@dataclasses.dataclass(frozen=True)
+class Model:
+    """The discrete FSW model of a scene on a cloud: residual, layout, scales, sparsity.
+
+    ``residual(x_new, x_old, t_new, dt, params)`` is the implicit-Euler step residual in the
+    contract of :func:`jaxanm.integrate`; ``params`` comes from :meth:`params`.
+    """
+
+    scene: Scene
+    effects: Effects
+    cloud: Cloud
+
+    @property
+    def fields(self) -> tuple:
+        """Unknown fields in layout order, e.g. ``("u", "v", "T")``."""
+        return self.effects.fields
+
+    @property
+    def residual(self):
+        """The step residual (one function object per effect combination: no recompiles)."""
+        return _residual_for(self.effects)
+
+    @property
+    def size(self) -> int:
+        """Number of unknowns ``len(fields) * N``."""
+        return len(self.fields) * self.cloud.size
+
+    def constants(self) -> dict:
+        """``params["c"]``: the scalars of :data:`CONSTANTS` as float64 numpy scalars.
+
+        Scales: velocity ``U = omega R1``; temperature ``Ts = T0`` (see :meth:`scale`);
+        viscosity ``mu_ref`` (:func:`mu_reference`).
+        """
+        s = self.scene
+        m, tl, th, g = s.material, s.tool, s.thermal, s.geometry
+        values = dict(K=m.K, A=m.A, n=m.n, eps0=m.eps0, rho=m.rho, Cp=m.Cp, k=m.k, beta=m.beta,
+                      rho_t=tl.rho, Cp_t=tl.Cp, k_t=tl.k, omega=tl.omega, h=th.h, Ta=th.Ta,
+                      T0=th.T0, lam=s.mechanics.penalty, dr=g.dr, U=tl.omega * g.R1, Ts=th.T0,
+                      mu_ref=mu_reference(s))
+        return {k: np.float64(values[k]) for k in CONSTANTS}
+
+    def params(self, points: np.ndarray, stencils: mls.Stencils, old=None, x_ref=None) -> dict:
+        """The residual's parameter pytree for the cloud at ``points`` with ``stencils``.
+
+        Lagrangian scenes also carry ``old`` (N, len(fields)) values at the points from the
+        previous step and ``x_ref`` (the state they were computed from); defaults: the initial
+        condition and :meth:`initial_state`.
+        """
+        points = np.asarray(points, dtype=np.float64)
+        r = np.hypot(points[:, 0], points[:, 1])
+        normal = np.where(r[:, None] > 0, points / np.where(r > 0, r, 1.0)[:, None], 0.0)
+        p = {"st": stencils, "c": self.constants(), "xy": points, "kind": self.cloud.kind,
+             "partner": self.cloud.partner, "normal": normal}
+        if self.effects.lagrangian:
+            p["old"] = self.initial_values(points) if old is None else np.asarray(old, dtype=np.float64)
+            p["x_ref"] = self.initial_state(points) if x_ref is None else np.asarray(x_ref, dtype=np.float64)
+        return p
+
+    def initial_values(self, points: np.ndarray) -> np.ndarray:
+        """Initial field values (N, len(fields)): the tool (and its edge) turning, plate at rest, T0."""
+        sc, kind = self.scene, self.cloud.kind
+        sticking = (kind == TOOL) | (kind == TOOL_EDGE) | (kind == PLATE_EDGE)
+        omega = sc.tool.omega
+        cols = {"u": np.where(sticking, -omega * points[:, 1], 0.0),
+                "v": np.where(sticking, omega * points[:, 0], 0.0),
+                "T": np.full(len(kind), sc.thermal.T0)}
+        return np.stack([cols[f] for f in self.fields], axis=1)
+
+    def initial_state(self, points: np.ndarray) -> np.ndarray:
+        """Initial unknowns: nodal parameters equal to :meth:`initial_values`, flattened."""
+        return self.initial_values(points).T.reshape(-1).copy()
+
+    def scale(self) -> np.ndarray:
+        """Characteristic magnitude of each unknown: ``omega R1`` for u, v and ``T0`` for T.
+
+        The ANM validity range (eq. 26) and Newton's convergence test use ``x / scale``.
+        T is measured by T0 because the viscosity depends on it through ``(T/T0)^A``: a relative
+        change of T/T0 changes mu, hence V/(omega R1), by the same relative order, so the two
+        non-dimensional fields weigh alike in the series norms.  (The temperature *rise* is of
+        the same order as T0 here, hundreds of kelvin.)
+        """
+        sc, N = self.scene, self.cloud.size
+        per = {"u": sc.tool.omega * sc.geometry.R1, "v": sc.tool.omega * sc.geometry.R1,
+               "T": sc.thermal.T0}
+        return np.concatenate([np.full(N, per[f]) for f in self.fields])
+
+    def sparsity(self, params: dict) -> scipy.sparse.csr_matrix:
+        """Jacobian pattern: row i couples to the stencil of i (and of its edge partner), all fields."""
+        index = np.asarray(params["st"].index)
+        partner = np.asarray(params["partner"])
+        N, m = index.shape
+        cols = np.concatenate([index, index[partner]], axis=1)
+        rows = np.repeat(np.arange(N), 2 * m)
+        point = scipy.sparse.csr_matrix((np.ones(rows.size, dtype=bool), (rows, cols.reshape(-1))),
+                                        shape=(N, N))
+        nf = len(self.fields)
+        return scipy.sparse.kron(np.ones((nf, nf), dtype=bool), point, format="csr")
+
+    def split(self, x) -> dict:
+        """Nodal parameters per field: ``{"u": (N,), ...}`` from the flat unknowns ``x``."""
+        X = np.asarray(x).reshape(len(self.fields), self.cloud.size)
+        return dict(zip(self.fields, X))
+
+    @entry_point
+    def values(self, x, stencils: mls.Stencils) -> np.ndarray:
+        """Field values at the stencils' points, (M, len(fields)), from the unknowns ``x``."""
+        X = jnp.asarray(x).reshape(len(self.fields), self.cloud.size)
+        return np.asarray(jnp.stack([mls.value(stencils, f) for f in X], axis=1))
+
+
+def make_model(scene: Scene, cloud: Cloud) -> Model:
+    """The :class:`Model` of ``scene`` on ``cloud``."""
+    return Model(scene=scene, effects=Effects.of(scene), cloud=cloud)

@@ -1,0 +1,254 @@
+"""Result files of an FSW run: summary JSON, fields NPZ, probe CSV, VTU/PVD series, figures.
+
+:func:`write_outputs` writes everything a run produces into one directory::
+
+    summary.json                   scene, solver settings, t_end, n_points, stats, final probes
+    fields.npz                     t (S,), points (S, N, 2), u, v, T (S, N), material (N,)
+    probes.csv                     t, then <probe>_u, <probe>_v, <probe>_T per registration point
+    fields.pvd                     ParaView collection of the VTU files with their times
+    vtu/fields_00000.vtu ...       point cloud (VTK vertex cells) with u, v, T, speed, material
+    fig02_*.png ... fig11_*.png    the paper's figures (see :mod:`jaxanm.fsw.figures`)
+
+Every file is written atomically: to a temporary name in the same directory, then
+``os.replace``-d onto its final name, so a reader never sees a half-written file and an
+interrupted run leaves no partial file behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import enum
+import json
+import logging
+import os
+import tempfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from jaxanm.fsw import figures
+
+log = logging.getLogger(__name__)
+
+VTU_DIR = "vtu"
+"""Sub-directory of the output directory holding the VTU files."""
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success move it onto ``path`` atomically.
+
+    The temporary file is created in the destination directory (so ``os.replace`` is an
+    atomic rename on the same file system) and removed if the ``with`` block raises.
+    """
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def to_jsonable(obj):
+    """Convert ``obj`` to plain JSON types (dict, list, str, float, int, bool, None).
+
+    Objects with an ``as_dict()`` or ``to_dict()`` method (:class:`jaxanm.Stats`, the
+    scene, in its TOML layout) and dataclasses become dictionaries; numpy/JAX arrays become (nested) lists; paths become strings; enums their
+    value; anything else unknown its ``repr``.  Non-finite floats are kept (JSON ``NaN``/
+    ``Infinity``, as Python's ``json`` writes them).
+    """
+    if obj is None or isinstance(obj, (bool, int, float, str)):
+        return obj
+    if isinstance(obj, np.generic):
+        return obj.item()
+    for method in ("as_dict", "to_dict"):
+        if callable(getattr(obj, method, None)):
+            return to_jsonable(getattr(obj, method)())
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, Mapping):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, set, frozenset)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    if isinstance(obj, enum.Enum):
+        return to_jsonable(obj.value)
+    if hasattr(obj, "__array__"):
+        return np.asarray(obj).tolist()
+    return repr(obj)
+
+
+def probe_names(result) -> list[str]:
+    """Names of the registration points of ``result``, in the order the scene lists them."""
+    return [name for name in result.probes if name != "t"]
+
+
+def end_time(result) -> float:
+    """Last simulated time: the last accepted step (probe history), else the last saved time."""
+    if len(result.probes.get("t", ())):
+        return float(np.asarray(result.probes["t"], dtype=np.float64)[-1])
+    return float(np.asarray(result.t, dtype=np.float64)[-1])
+
+
+def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> Path:
+    """Write ``summary.json``: scene, solver settings, ``t_end``, ``n_points``, stats, final probes.
+
+    ``solver_settings`` is any dict/dataclass describing the solver; ``None`` takes
+    ``result.solver``.  ``probes_final`` holds x, y, u, v, T of every registration point at
+    the last accepted step.
+    """
+    path = Path(out_dir) / "summary.json"
+    final = {}
+    for name in probe_names(result):
+        final[name] = {k: float(np.asarray(v, dtype=np.float64)[-1])
+                       for k, v in result.probes[name].items()}
+    t = np.asarray(result.t, dtype=np.float64)
+    summary = {
+        "scene": to_jsonable(result.scene),
+        "solver": to_jsonable(result.solver if solver_settings is None else solver_settings),
+        "t_end": end_time(result),
+        "n_points": int(np.asarray(result.material).shape[0]),
+        "n_saved": int(t.shape[0]),
+        "t_saved": t.tolist(),
+        "stats": to_jsonable(result.stats),
+        "probes_final": final,
+    }
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    return path
+
+
+def write_fields(result, out_dir: str | os.PathLike) -> Path:
+    """Write ``fields.npz`` with ``t`` (S,), ``points`` (S, N, 2), ``u``, ``v``, ``T`` (S, N), ``material`` (N,)."""
+    path = Path(out_dir) / "fields.npz"
+    arrays = {
+        "t": np.asarray(result.t, dtype=np.float64),
+        "points": np.asarray(result.points, dtype=np.float64),
+        "u": np.asarray(result.u, dtype=np.float64),
+        "v": np.asarray(result.v, dtype=np.float64),
+        "T": np.asarray(result.T, dtype=np.float64),
+        "material": np.asarray(result.material, dtype=np.int32),
+    }
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:  # a file object: np.savez would append ".npz" to a name
+            np.savez_compressed(f, **arrays)
+    return path
+
+
+def write_probes(result, out_dir: str | os.PathLike) -> Path:
+    """Write ``probes.csv``: column ``t`` then ``<probe>_u``, ``<probe>_v``, ``<probe>_T`` per point.
+
+    One row per accepted time step, values with 17 significant digits (exact round trip).
+    """
+    path = Path(out_dir) / "probes.csv"
+    columns = [np.asarray(result.probes["t"], dtype=np.float64)]
+    header = ["t"]
+    for name in probe_names(result):
+        for key in ("u", "v", "T"):
+            columns.append(np.asarray(result.probes[name][key], dtype=np.float64))
+            header.append(f"{name}_{key}")
+    with atomic_path(path) as tmp:
+        np.savetxt(tmp, np.column_stack(columns), fmt="%.17g", delimiter=",",
+                   header=",".join(header), comments="")
+    return path
+
+
+def write_vtu(result, out_dir: str | os.PathLike) -> list[Path]:
+    """Write one VTU file per saved time into ``vtu/`` and the collection ``fields.pvd``.
+
+    Each VTU holds the point cloud (z = 0) as VTK ``vertex`` cells with point data ``u``,
+    ``v``, ``T``, ``speed``, ``velocity`` (3-vector, for glyphs) and ``material``.  The PVD
+    file lists the VTU files with their times; open it in ParaView to get the time series.
+    VTU files of an earlier run in the same directory that this run does not list are removed.
+    """
+    import meshio
+
+    out_dir = Path(out_dir)
+    vtu_dir = out_dir / VTU_DIR
+    vtu_dir.mkdir(parents=True, exist_ok=True)
+    t = np.asarray(result.t, dtype=np.float64)
+    points = np.asarray(result.points, dtype=np.float64)
+    u = np.asarray(result.u, dtype=np.float64)
+    v = np.asarray(result.v, dtype=np.float64)
+    T = np.asarray(result.T, dtype=np.float64)
+    material = np.asarray(result.material, dtype=np.int32)
+    n = material.shape[0]
+    cells = [("vertex", np.arange(n, dtype=np.int64).reshape(-1, 1))]
+    written = []
+    for s in range(t.shape[0]):
+        xyz = np.column_stack([points[s], np.zeros(n)])
+        mesh = meshio.Mesh(xyz, cells, point_data={
+            "u": u[s], "v": v[s], "T": T[s],
+            "speed": np.hypot(u[s], v[s]),
+            "velocity": np.column_stack([u[s], v[s], np.zeros(n)]),
+            "material": material,
+        })
+        path = vtu_dir / f"fields_{s:05d}.vtu"
+        with atomic_path(path) as tmp:
+            meshio.write(tmp, mesh, file_format="vtu")
+        written.append(path)
+    keep = {p.name for p in written}
+    for stale in vtu_dir.glob("fields_*.vtu"):
+        if stale.name not in keep:
+            stale.unlink()
+    pvd = out_dir / "fields.pvd"
+    lines = ['<?xml version="1.0"?>',
+             '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">',
+             "  <Collection>"]
+    for ts, path in zip(t, written):
+        rel = path.relative_to(out_dir).as_posix()
+        lines.append(f'    <DataSet timestep="{float(ts)!r}" group="" part="0" file={quoteattr(rel)}/>')
+    lines += ["  </Collection>", "</VTKFile>", ""]
+    with atomic_path(pvd) as tmp:
+        tmp.write_text("\n".join(lines), encoding="utf-8")
+    return [*written, pvd]
+
+
+def write_outputs(result, out_dir: str | os.PathLike, solver_settings=None) -> list[Path]:
+    """Write every output of an FSW run into ``out_dir`` (created if needed); return the paths.
+
+    ``result`` is a :class:`jaxanm.fsw.simulate.FSWResult` (or any object with its fields);
+    ``solver_settings`` describes the solver for ``summary.json`` (``None``: ``result.solver``).
+    Figures whose data is absent (no temperature, run too short) are skipped with a logged
+    note; see :func:`write_figures`.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [
+        write_summary(result, out_dir, solver_settings),
+        write_fields(result, out_dir),
+        write_probes(result, out_dir),
+    ]
+    paths += write_vtu(result, out_dir)
+    paths += write_figures(result, out_dir)
+    log.info("wrote %d files to %s", len(paths), out_dir)
+    return paths
+
+
+def write_figures(result, out_dir: str | os.PathLike) -> list[Path]:
+    """Write the paper's figures (PNG, 150 dpi) into ``out_dir``; return the paths written.
+
+    A figure whose data is absent is skipped with a logged note, and a file of that name
+    left by an earlier run in the same directory is removed (it would describe another run).
+    """
+    out_dir = Path(out_dir)
+    written = []
+    for name, build in figures.paper_figures(result):
+        path = out_dir / name
+        try:
+            fig = build()
+        except figures.FigureSkipped as skipped:
+            log.info("%s skipped: %s", name.split("_")[0], skipped)
+            path.unlink(missing_ok=True)
+            continue
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=150)
+        written.append(path)
+    return written

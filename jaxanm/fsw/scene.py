@@ -1,0 +1,528 @@
+"""FSW scenes: typed, validated, loaded from TOML or built in Python, overridable by key.
+
+A :class:`Scene` holds everything a friction-stir-welding run needs, in SI units: geometry and
+point layout, plate material, tool, thermal boundary data, the penalty factor, time stepping,
+the nonlinear solver, registration points (probes), registration sections and the list of
+*effects* (which residual terms and unknowns the model assembles, see :data:`EFFECTS`).
+
+Every value is checked when the scene is built (from Python, from TOML or by
+:meth:`Scene.with_overrides`), before any computation: a bad value raises :class:`SceneError`
+(a ``ValueError``) naming the field, the value and what is allowed.
+
+Shipped scenes live in ``jaxanm/fsw/scenes/*.toml``; :func:`load_scene` takes their name
+(``"fsw_paper"``) or a path to a TOML file of the same layout::
+
+    name = "my_scene"
+    effects = ["viscous", "conduction", "robin"]
+    [geometry]   R1 = 1.5e-3  ...          # one table per section, keys = field names
+    [[probes]]   name = "1"  x = 1.875e-3  y = 0.0
+    [[sections]] name = "A-A"  start = [-6e-3, 0.0]  end = [6e-3, 0.0]  samples = 161
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from pathlib import Path
+
+__all__ = [
+    "EFFECTS",
+    "EFFECT_REQUIRES",
+    "Geometry",
+    "Material",
+    "Mechanics",
+    "Probe",
+    "Scene",
+    "SceneError",
+    "Section",
+    "SolverSpec",
+    "Thermal",
+    "Time",
+    "Tool",
+    "load_scene",
+    "override_keys",
+    "shipped_scenes",
+]
+
+SCENES_DIR = Path(__file__).with_name("scenes")
+"""Directory of the shipped scene files."""
+
+EFFECTS = (
+    "inertia",
+    "viscous",
+    "softening",
+    "conduction",
+    "tool_conduction",
+    "dissipation",
+    "robin",
+    "lagrangian",
+    "tracers",
+)
+"""Effect names a scene may list (a contract with the CLI and the model):
+
+- ``viscous``: momentum balance of the power-law fluid with penalised incompressibility
+  (creates the velocity unknowns u, v; the tool turns rigidly, the ring r = R2 is fixed);
+- ``inertia``: ``rho dV/dt`` in the momentum balance;
+- ``softening``: viscosity depends on temperature through ``T^A`` (else ``T0^A``);
+- ``conduction``: heat equation in the plate (creates the temperature unknowns T);
+- ``tool_conduction``: heat equation in the tool, T and heat flux continuous at r = R1 (else the
+  plate edge r = R1 is insulated and the tool stays at T0);
+- ``dissipation``: heat source ``q = 3 beta mu epsbar^2``;
+- ``robin``: ``-k dT/dN = h (T - Ta)`` at r = R2 (else that edge is insulated);
+- ``lagrangian``: points move with the material (``x <- x + dt V``, tool points rotate rigidly),
+  stencils are rebuilt after every step;
+- ``tracers``: fixed (Eulerian) points, ``V . grad`` transport terms, passive tracer particles
+  advected for the mixing picture.
+"""
+
+EFFECT_REQUIRES = {
+    "inertia": ("viscous",),
+    "softening": ("viscous", "conduction"),
+    "tool_conduction": ("conduction",),
+    "dissipation": ("viscous", "conduction"),
+    "robin": ("conduction",),
+    "lagrangian": ("viscous",),
+    "tracers": ("viscous",),
+}
+"""Effects that need other effects (the field they act on)."""
+
+LAYOUTS = ("polar", "grid")
+SOLVER_KINDS = ("anm", "newton", "modified_newton")
+
+
+class SceneError(ValueError):
+    """An invalid scene value; the message names the field, the bad value and what is allowed."""
+
+
+def _fail(field: str, value, allowed: str):
+    raise SceneError(f"scene field {field!r} = {value!r} is invalid: {allowed}")
+
+
+def _check(field: str, value, ok: bool, allowed: str) -> None:
+    if not ok:
+        _fail(field, value, allowed)
+
+
+def _as_float(field: str, value) -> float:
+    """A finite float from an int/float (or, for overrides, its string form)."""
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            _fail(field, value, "expected a real number, e.g. 2.69e16")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        _fail(field, value, "expected a real number")
+    value = float(value)
+    _check(field, value, math.isfinite(value), "expected a finite real number")
+    return value
+
+
+def _as_int(field: str, value) -> int:
+    if isinstance(value, str):
+        try:
+            value = int(value)
+        except ValueError:
+            _fail(field, value, "expected an integer")
+    if isinstance(value, bool) or not isinstance(value, int):
+        _fail(field, value, "expected an integer")
+    return int(value)
+
+
+def _as_str(field: str, value) -> str:
+    _check(field, value, isinstance(value, str), "expected a string")
+    return value
+
+
+def _as_floats(field: str, value) -> tuple:
+    """A tuple of floats from a list/tuple (or a comma-separated string)."""
+    if isinstance(value, str):
+        value = [v for v in (s.strip() for s in value.split(",")) if v]
+    _check(field, value, isinstance(value, (list, tuple)), "expected a list of real numbers")
+    return tuple(_as_float(f"{field}[{i}]", v) for i, v in enumerate(value))
+
+
+def _as_strs(field: str, value) -> tuple:
+    """A tuple of strings from a list/tuple (or a comma-separated string)."""
+    if isinstance(value, str):
+        value = [v for v in (s.strip() for s in value.split(",")) if v]
+    _check(field, value, isinstance(value, (list, tuple)), "expected a list of names")
+    return tuple(_as_str(f"{field}[{i}]", v) for i, v in enumerate(value))
+
+
+_CONVERTERS = {"float": _as_float, "int": _as_int, "str": _as_str,
+               "tuple[float, ...]": _as_floats, "tuple[str, ...]": _as_strs}
+
+
+class _Section:
+    """Base of the scene's sections: converts every field to its declared type on creation."""
+
+    _name = ""
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            conv = _CONVERTERS[f.type]
+            object.__setattr__(self, f.name, conv(f"{self._name}.{f.name}", getattr(self, f.name)))
+        self._validate()
+
+    def _validate(self) -> None:
+        """Range checks of the section's own fields (overridden per section)."""
+
+    def _positive(self, *names: str) -> None:
+        for name in names:
+            value = getattr(self, name)
+            _check(f"{self._name}.{name}", value, value > 0, "must be > 0")
+
+
+@dataclasses.dataclass(frozen=True)
+class Geometry(_Section):
+    """Disc of radius R2 around a tool of radius R1, covered by points ``dr`` apart (metres).
+
+    ``layout``: ``"polar"`` (concentric rings ``dr`` apart, about ``2 pi r / dr`` points each,
+    an even number so that no point lies on y = 0) or ``"grid"`` (a square grid of spacing
+    ``dr`` clipped ``dr/2`` away from r = R1 and r = R2, plus the same boundary rings).
+    Both put points on r = R2 and a pair of coincident points on r = R1 (one on the tool side,
+    one on the plate side, see :mod:`jaxanm.fsw.geometry`).  The MLS influence radius is
+    ``h_factor * dr``; ``c`` and ``q`` are the weight parameters of paper eq. 30.
+    """
+
+    _name = "geometry"
+    R1: float = 1.5e-3
+    R2: float = 6e-3
+    dr: float = 3.75e-4
+    h_factor: float = 3.0
+    layout: str = "polar"
+    c: float = 0.2
+    q: int = 1
+
+    def _validate(self):
+        self._positive("R1", "R2", "dr", "c")
+        _check("geometry.R2", self.R2, self.R2 > self.R1, f"must exceed geometry.R1 = {self.R1}")
+        _check("geometry.dr", self.dr, self.dr <= (self.R2 - self.R1) / 2,
+               f"must be <= (R2 - R1) / 2 = {(self.R2 - self.R1) / 2:.6g} (at least one ring of "
+               f"points between tool and outer edge)")
+        _check("geometry.h_factor", self.h_factor, 1.5 <= self.h_factor <= 6.0,
+               "must be in [1.5, 6] (the paper uses 3)")
+        _check("geometry.layout", self.layout, self.layout in LAYOUTS, f"must be one of {LAYOUTS}")
+        _check("geometry.q", self.q, self.q >= 1, "must be an integer >= 1 (the paper uses 1)")
+
+
+@dataclasses.dataclass(frozen=True)
+class Material(_Section):
+    """Plate material (SI): ``mu = K T^A epsbar_reg^(n-1) / 3``, ``epsbar_reg = sqrt(epsbar^2 + eps0^2)``.
+
+    K in Pa s^n K^-A (the paper's 2.69e10 N/mm^2 is 2.69e16 Pa), density ``rho``, heat
+    capacity ``Cp``, conductivity ``k``, dissipated fraction ``beta`` of the mechanical power.
+    """
+
+    _name = "material"
+    K: float = 2.69e16
+    A: float = -3.3155
+    n: float = 0.1324
+    eps0: float = 1e-2
+    rho: float = 2780.0
+    Cp: float = 920.0
+    k: float = 140.0
+    beta: float = 0.9
+
+    def _validate(self):
+        self._positive("K", "n", "eps0", "rho", "Cp", "k")
+        _check("material.n", self.n, self.n <= 2.0, "must be in (0, 2] (power-law index)")
+        _check("material.A", self.A, -20.0 <= self.A <= 20.0, "must be in [-20, 20]")
+        _check("material.beta", self.beta, 0.0 <= self.beta <= 1.0, "must be in [0, 1]")
+
+
+@dataclasses.dataclass(frozen=True)
+class Tool(_Section):
+    """Tool (steel): density, heat capacity, conductivity (SI) and rotation speed ``omega`` (rad/s)."""
+
+    _name = "tool"
+    rho: float = 7800.0
+    Cp: float = 450.0
+    k: float = 36.0
+    omega: float = 20.0
+
+    def _validate(self):
+        self._positive("rho", "Cp", "k", "omega")
+
+
+@dataclasses.dataclass(frozen=True)
+class Thermal(_Section):
+    """Robin coefficient ``h`` (W/m^2/K), ambient ``Ta`` and initial ``T0`` temperatures (K)."""
+
+    _name = "thermal"
+    h: float = 1000.0
+    Ta: float = 300.0
+    T0: float = 300.0
+
+    def _validate(self):
+        _check("thermal.h", self.h, self.h >= 0, "must be >= 0")
+        self._positive("Ta", "T0")
+
+
+@dataclasses.dataclass(frozen=True)
+class Mechanics(_Section):
+    """Penalty factor ``lambda`` (Pa s) of ``p = -lambda tr(epsdot)`` (paper eq. 9)."""
+
+    _name = "mechanics"
+    penalty: float = 0.0
+
+    def _validate(self):
+        _check("mechanics.penalty", self.penalty, self.penalty >= 0, "must be >= 0 (Pa s)")
+
+
+@dataclasses.dataclass(frozen=True)
+class Time(_Section):
+    """Implicit Euler step ``dt``, end time ``t_end`` (s) and the times at which fields are saved.
+
+    Save times after ``t_end`` are ignored (so a shortened run keeps the scene's list);
+    t = 0 and t = t_end are always saved.
+    """
+
+    _name = "time"
+    dt: float = 1e-4
+    t_end: float = 0.7
+    save: tuple[float, ...] = ()
+
+    def _validate(self):
+        self._positive("dt", "t_end")
+        _check("time.dt", self.dt, self.dt <= self.t_end, f"must be <= time.t_end = {self.t_end}")
+        for i, s in enumerate(self.save):
+            _check(f"time.save[{i}]", s, s >= 0, "save times must be >= 0")
+
+    @property
+    def save_times(self) -> tuple:
+        """Sorted save times within [0, t_end], with 0 and t_end included."""
+        return tuple(sorted({0.0, self.t_end, *(s for s in self.save if s <= self.t_end)}))
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverSpec(_Section):
+    """Nonlinear step solver: ``kind`` in ``anm | newton | modified_newton``, ANM ``order``, ``tol``."""
+
+    _name = "solver"
+    kind: str = "anm"
+    order: int = 7
+    tol: float = 1e-6
+
+    def _validate(self):
+        _check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
+        _check("solver.order", self.order, self.order >= 2, "must be an integer >= 2")
+        _check("solver.tol", self.tol, 0 < self.tol < 1, "must be in (0, 1)")
+
+    def make(self):
+        """The :mod:`jaxanm` solver options object (``jaxanm.ANM``, ``Newton`` or ``ModifiedNewton``)."""
+        import jaxanm
+
+        if self.kind == "anm":
+            return jaxanm.ANM(order=self.order, tol=self.tol)
+        if self.kind == "newton":
+            return jaxanm.Newton(tol=self.tol)
+        return jaxanm.ModifiedNewton(tol=self.tol)
+
+
+@dataclasses.dataclass(frozen=True)
+class Probe(_Section):
+    """A registration point: the plate point nearest ``(x, y)`` at t = 0, followed as it moves."""
+
+    _name = "probes"
+    name: str = ""
+    x: float = 0.0
+    y: float = 0.0
+
+    def _validate(self):
+        _check("probes.name", self.name, bool(self.name) and self.name != "t",
+               "must be a non-empty name other than 't'")
+
+
+@dataclasses.dataclass(frozen=True)
+class Section(_Section):
+    """A registration section: ``samples`` points on the segment from ``start`` to ``end`` (m)."""
+
+    _name = "sections"
+    name: str = ""
+    start: tuple[float, ...] = (0.0, 0.0)
+    end: tuple[float, ...] = (0.0, 0.0)
+    samples: int = 161
+
+    def _validate(self):
+        _check("sections.name", self.name, bool(self.name), "must be a non-empty name")
+        for key in ("start", "end"):
+            _check(f"sections.{key}", getattr(self, key), len(getattr(self, key)) == 2,
+                   "must be a point [x, y]")
+        _check("sections.samples", self.samples, self.samples >= 2, "must be an integer >= 2")
+
+
+_SECTIONS = {"geometry": Geometry, "material": Material, "tool": Tool, "thermal": Thermal,
+             "mechanics": Mechanics, "time": Time, "solver": SolverSpec}
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """A complete, validated FSW scene (SI units).
+
+    Build it from Python (``Scene(effects=("viscous",), material=Material(n=0.3))``), from TOML
+    (:func:`load_scene`) or from another scene (:meth:`with_overrides`).  Cross-field checks
+    (effect names and dependencies, probes inside the plate, sections inside the disc) run on
+    creation and raise :class:`SceneError`.
+    """
+
+    name: str = "scene"
+    effects: tuple[str, ...] = ("viscous",)
+    geometry: Geometry = dataclasses.field(default_factory=Geometry)
+    material: Material = dataclasses.field(default_factory=Material)
+    tool: Tool = dataclasses.field(default_factory=Tool)
+    thermal: Thermal = dataclasses.field(default_factory=Thermal)
+    mechanics: Mechanics = dataclasses.field(default_factory=Mechanics)
+    time: Time = dataclasses.field(default_factory=Time)
+    solver: SolverSpec = dataclasses.field(default_factory=SolverSpec)
+    probes: tuple[Probe, ...] = ()
+    sections: tuple[Section, ...] = ()
+
+    def __post_init__(self):
+        object.__setattr__(self, "name", _as_str("name", self.name))
+        effects = _as_strs("effects", self.effects)
+        object.__setattr__(self, "effects", effects)
+        for key, cls in _SECTIONS.items():
+            _check(key, getattr(self, key), isinstance(getattr(self, key), cls),
+                   f"expected a jaxanm.fsw.scene.{cls.__name__}")
+        for key, cls in (("probes", Probe), ("sections", Section)):
+            items = tuple(getattr(self, key))
+            for i, item in enumerate(items):
+                _check(f"{key}[{i}]", item, isinstance(item, cls), f"expected a {cls.__name__}")
+            object.__setattr__(self, key, items)
+        self._validate_effects()
+        self._validate_places()
+
+    def _validate_effects(self):
+        _check("effects", self.effects, len(self.effects) > 0,
+               f"list at least one effect of {EFFECTS}")
+        for e in self.effects:
+            _check("effects", e, e in EFFECTS, f"unknown effect; known effects are {EFFECTS}")
+        _check("effects", self.effects, len(set(self.effects)) == len(self.effects),
+               "an effect is listed twice")
+        have = set(self.effects)
+        _check("effects", self.effects, bool(have & {"viscous", "conduction"}),
+               "list 'viscous' (velocity) and/or 'conduction' (temperature): without them the "
+               "scene has no unknowns")
+        for e in self.effects:
+            missing = [r for r in EFFECT_REQUIRES.get(e, ()) if r not in have]
+            _check("effects", self.effects, not missing,
+                   f"effect {e!r} needs {missing} (add them or drop {e!r})")
+        _check("effects", self.effects, not {"lagrangian", "tracers"} <= have,
+               "'lagrangian' (moving points) and 'tracers' (fixed points) exclude each other")
+
+    def _validate_places(self):
+        g = self.geometry
+        names = [p.name for p in self.probes]
+        _check("probes", names, len(set(names)) == len(names), "probe names must be unique")
+        for i, p in enumerate(self.probes):
+            r = math.hypot(p.x, p.y)
+            _check(f"probes[{i}] ({p.name})", (p.x, p.y), g.R1 < r < g.R2,
+                   f"must lie in the plate, R1 = {g.R1} < r < R2 = {g.R2} (r = {r:.6g})")
+        names = [s.name for s in self.sections]
+        _check("sections", names, len(set(names)) == len(names), "section names must be unique")
+        for i, s in enumerate(self.sections):
+            for key in ("start", "end"):
+                pt = getattr(s, key)
+                _check(f"sections[{i}].{key}", pt, math.hypot(*pt) <= g.R2 * (1 + 1e-12),
+                       f"must lie in the disc r <= R2 = {g.R2}")
+
+    def has(self, effect: str) -> bool:
+        """Whether the scene lists ``effect``."""
+        return effect in self.effects
+
+    def with_overrides(self, overrides: dict) -> "Scene":
+        """A new scene with ``{"section.field": value}`` replaced (values may be strings).
+
+        Keys are :func:`override_keys` (e.g. ``material.K``, ``time.dt``, ``effects``); string
+        values are parsed to the field's type (``"2e16"``, ``"conduction,robin"``).  The result
+        is validated as a whole; an unknown key or bad value raises :class:`SceneError`.
+        """
+        top: dict = {}
+        per_section: dict = {}
+        allowed = override_keys()
+        for key, value in overrides.items():
+            _check("override key", key, key in allowed, f"known keys are {', '.join(allowed)}")
+            if "." in key:
+                sec, fld = key.split(".", 1)
+                per_section.setdefault(sec, {})[fld] = value
+            else:
+                top[key] = value
+        changes = {sec: dataclasses.replace(getattr(self, sec), **fields)
+                   for sec, fields in per_section.items()}
+        return dataclasses.replace(self, **top, **changes)
+
+    def to_dict(self) -> dict:
+        """Plain dictionary in the TOML layout (round-trips through :meth:`from_dict`)."""
+        d = {"name": self.name, "effects": list(self.effects)}
+        for key in _SECTIONS:
+            d[key] = _section_dict(getattr(self, key))
+        d["probes"] = [_section_dict(p) for p in self.probes]
+        d["sections"] = [_section_dict(s) for s in self.sections]
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "scene") -> "Scene":
+        """Scene from a dictionary in the TOML layout; unknown tables or keys raise :class:`SceneError`."""
+        known = {"name", "effects", "probes", "sections", *_SECTIONS}
+        for key in data:
+            _check(f"{source}: top-level key", key, key in known, f"known keys are {sorted(known)}")
+        kwargs = {k: data[k] for k in ("name", "effects") if k in data}
+        for key, sec in _SECTIONS.items():
+            if key in data:
+                kwargs[key] = _section_from(sec, data[key], f"{source}: [{key}]")
+        for key, sec in (("probes", Probe), ("sections", Section)):
+            if key in data:
+                items = data[key]
+                _check(f"{source}: {key}", items, isinstance(items, list), f"expected [[{key}]] tables")
+                kwargs[key] = tuple(_section_from(sec, it, f"{source}: [[{key}]] #{i}")
+                                    for i, it in enumerate(items))
+        return cls(**kwargs)
+
+
+def _section_dict(obj) -> dict:
+    return {f.name: (list(v) if isinstance(v := getattr(obj, f.name), tuple) else v)
+            for f in dataclasses.fields(obj)}
+
+
+def _section_from(cls, table, where: str):
+    _check(where, table, isinstance(table, dict), "expected a table of key = value")
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key in table:
+        _check(f"{where} key", key, key in names, f"known keys are {sorted(names)}")
+    return cls(**table)
+
+
+def override_keys() -> tuple:
+    """Every key :meth:`Scene.with_overrides` accepts: ``effects``, ``name`` and ``section.field``."""
+    keys = ["effects", "name"]
+    for sec, cls in _SECTIONS.items():
+        keys += [f"{sec}.{f.name}" for f in dataclasses.fields(cls)]
+    return tuple(keys)
+
+
+def shipped_scenes() -> tuple:
+    """Names of the scenes shipped in ``jaxanm/fsw/scenes``."""
+    return tuple(sorted(p.stem for p in SCENES_DIR.glob("*.toml")))
+
+
+def load_scene(name_or_path) -> Scene:
+    """Load a shipped scene by name (``"fsw_paper"``) or a scene TOML file by path.
+
+    Raises :class:`SceneError` if the name is unknown, the file is not valid TOML, or a value
+    is invalid (the message names the field).
+    """
+    path = Path(name_or_path)
+    if path.suffix != ".toml" and not path.exists():
+        if str(name_or_path) not in shipped_scenes():
+            raise SceneError(f"unknown scene {str(name_or_path)!r}: give a path to a .toml file or "
+                             f"one of the shipped scenes {shipped_scenes()}")
+        path = SCENES_DIR / f"{name_or_path}.toml"
+    if not path.is_file():
+        raise SceneError(f"scene file {str(path)!r} does not exist")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"scene file {str(path)!r} is not valid TOML: {exc}") from exc
+    return Scene.from_dict(data, source=str(path))

@@ -1,0 +1,221 @@
+"""Run an FSW scene: cloud, model, time integration, Lagrangian motion, probes and sections.
+
+:func:`run` builds the point cloud and MLS stencils of a :class:`~jaxanm.fsw.scene.Scene`,
+its :class:`~jaxanm.fsw.model.Model`, and calls :func:`jaxanm.integrate` with a host hook
+after every accepted step that
+
+- evaluates the fields at the points (MLS is not interpolating: values, not nodal parameters);
+- records the registration points (probes: material points, followed as they move) and, at
+  the save times, the fields and the registration sections;
+- with ``lagrangian``: moves the points (tool and tool-edge points rotate rigidly by
+  ``omega dt``, exactly; plate points ``x <- x + dt V``), rebuilds the stencils with the same
+  width (nothing recompiles) and hands the carried values to the next step;
+- with ``tracers``: advects passive tracer particles (initially at the points) through the
+  fixed cloud, for the mixing picture.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable
+
+import numpy as np
+
+import jaxanm
+
+from .geometry import PLATE, PLATE_EDGE, TOOL, TOOL_EDGE, build_cloud, build_stencils, evaluate_stencils
+from .model import Model, make_model
+from .scene import Scene
+
+__all__ = ["FSWResult", "run"]
+
+
+@dataclasses.dataclass
+class FSWResult:
+    """Result of :func:`run` (see docs/architecture.md).
+
+    Attributes
+    ----------
+    scene : Scene
+    t : (S,) saved times (0, the scene's save times within t_end, t_end).
+    points : (S, N, 2) point positions at the saved times (they move in Lagrangian scenes).
+    u, v, T : (S, N) field values at the points (u = v = 0 without ``viscous``;
+        T = T0 without ``conduction``).
+    material : (N,) int, 0 tool, 1 plate y > 0 ("blue"), 2 plate y < 0 ("red").
+    probes : ``{"t": (M,), name: {"x", "y", "u", "v", "T": (M,)}}`` at t = 0 and every accepted
+        step; each registration point is the plate point nearest the scene's probe position
+        at t = 0, followed as it moves.
+    sections : ``{"t": (S,), name: {"x", "y", "s": (P,), "u", "v", "T": (S, P)}}``: MLS values
+        along each registration section at the saved times (``s`` is the abscissa along the
+        segment, from its start).
+    stats : jaxanm.Stats of the run.
+    solver : the solver options used (``jaxanm.ANM``, ``Newton`` or ``ModifiedNewton``).
+    tracers : with the ``tracers`` effect, ``{"points": (S, N, 2), "material": (N,)}``: passive
+        particles started at the points, advected by the flow; else None.
+    """
+
+    scene: Scene
+    t: np.ndarray
+    points: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    T: np.ndarray
+    material: np.ndarray
+    probes: dict
+    sections: dict
+    stats: jaxanm.Stats
+    solver: object
+    tracers: dict | None = None
+
+
+def _rotate(points: np.ndarray, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return points @ np.array([[c, s], [-s, c]])
+
+
+def _move(points: np.ndarray, kind: np.ndarray, velocity: np.ndarray, omega: float, dt: float) -> np.ndarray:
+    """Material motion over dt: tool and edge points rotate rigidly, the others follow V."""
+    rigid = (kind == TOOL) | (kind == TOOL_EDGE) | (kind == PLATE_EDGE)
+    return np.where(rigid[:, None], _rotate(points, omega * dt), points + dt * velocity)
+
+
+def _full_values(model: Model, values: np.ndarray) -> dict:
+    """``{"u", "v", "T"}`` at the points, filling the absent fields (V = 0, T = T0)."""
+    cols = dict(zip(model.fields, values.T))
+    zero = np.zeros(values.shape[0])
+    return {"u": cols.get("u", zero), "v": cols.get("v", zero),
+            "T": cols.get("T", np.full(values.shape[0], model.scene.thermal.T0))}
+
+
+class _Recorder:
+    """Host-side state of a run: moving cloud, probes, saved fields and sections."""
+
+    def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_steps: set):
+        self.scene, self.model, self.save_steps = scene, model, save_steps
+        cloud = model.cloud
+        self.points = cloud.points.copy()
+        self.width = stencils.index.shape[1]
+        self.step, self.t = 0, 0.0
+        plate = np.flatnonzero(cloud.kind == PLATE)
+        self.probe_index = {p.name: int(plate[np.argmin(np.hypot(*(cloud.points[plate] - (p.x, p.y)).T))])
+                            for p in scene.probes}
+        self.section_points = {s.name: np.linspace(s.start, s.end, s.samples) for s in scene.sections}
+        self.probes = {"t": [], **{name: {k: [] for k in "xyuvT"} for name in self.probe_index}}
+        self.saved = {"t": [], "points": [], "u": [], "v": [], "T": []}
+        self.sections = {"t": [], **{name: {k: [] for k in "uvT"} for name in self.section_points}}
+        self.tracers = cloud.points.copy() if model.effects.tracers else None
+        self.tracer_saves = []
+        self._save_sections(x0, stencils)
+        self._record(0.0, _full_values(model, model.initial_values(self.points)), save=True)
+
+    def _record(self, t: float, values: dict, save: bool) -> None:
+        """Probe values at every step; fields (and tracers) at the save steps."""
+        self.probes["t"].append(t)
+        for name, i in self.probe_index.items():
+            rec = self.probes[name]
+            rec["x"].append(self.points[i, 0])
+            rec["y"].append(self.points[i, 1])
+            for k in "uvT":
+                rec[k].append(values[k][i])
+        if save:
+            self.saved["t"].append(t)
+            self.saved["points"].append(self.points.copy())
+            for k in "uvT":
+                self.saved[k].append(values[k].copy())
+            if self.tracers is not None:
+                self.tracer_saves.append(self.tracers.copy())
+
+    def _save_sections(self, x, stencils) -> None:
+        """MLS values along the sections, from unknowns ``x`` on the cloud they were solved on."""
+        self.sections["t"].append(self.t)
+        for name, targets in self.section_points.items():
+            st = evaluate_stencils(self.points, self.model.cloud.n_tool, self.scene.geometry, targets)
+            sec = _full_values(self.model, self.model.values(x, st))
+            for k in "uvT":
+                self.sections[name][k].append(sec[k])
+
+    def after_step(self, t_new, x, params):
+        """The :func:`jaxanm.integrate` hook: record, then move the cloud (Lagrangian) or tracers."""
+        model, scene = self.model, self.scene
+        dt = float(t_new) - self.t
+        self.step += 1
+        self.t = float(t_new)
+        x = np.asarray(x)
+        values = model.values(x, params["st"])
+        full = _full_values(model, values)
+        save = self.step in self.save_steps
+        if save:
+            self._save_sections(x, params["st"])
+        if self.tracers is not None:
+            tst = evaluate_stencils(self.points, model.cloud.n_tool, scene.geometry, self.tracers)
+            tv = _full_values(model, model.values(x, tst))
+            self.tracers = _move(self.tracers, model.cloud.kind, np.stack([tv["u"], tv["v"]], axis=1),
+                                 scene.tool.omega, dt)
+        if model.effects.lagrangian:
+            velocity = np.stack([full["u"], full["v"]], axis=1)
+            self.points = _move(self.points, model.cloud.kind, velocity, scene.tool.omega, dt)
+            st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width)
+            params = model.params(self.points, st, old=values, x_ref=x)
+        self._record(self.t, full, save)
+        return params
+
+    def result(self, solver, stats) -> FSWResult:
+        """Assemble the :class:`FSWResult`."""
+        probes = {"t": np.asarray(self.probes["t"])}
+        for name in self.probe_index:
+            probes[name] = {k: np.asarray(v) for k, v in self.probes[name].items()}
+        sections = {"t": np.asarray(self.sections["t"])}
+        for name, targets in self.section_points.items():
+            s = np.hypot(*(targets - targets[0]).T)
+            sections[name] = {"x": targets[:, 0], "y": targets[:, 1], "s": s,
+                              **{k: np.asarray(v) for k, v in self.sections[name].items()}}
+        tracers = None
+        if self.tracers is not None:
+            tracers = {"points": np.asarray(self.tracer_saves), "material": self.model.cloud.material.copy()}
+        return FSWResult(scene=self.scene, t=np.asarray(self.saved["t"]),
+                         points=np.asarray(self.saved["points"]),
+                         u=np.asarray(self.saved["u"]), v=np.asarray(self.saved["v"]),
+                         T=np.asarray(self.saved["T"]), material=self.model.cloud.material.copy(),
+                         probes=probes, sections=sections, stats=stats, solver=solver, tracers=tracers)
+
+
+def _save_steps(scene: Scene, n_steps: int) -> set:
+    dt = scene.time.dt
+    return {min(max(round(t / dt), 0), n_steps) for t in scene.time.save_times if t > 0}
+
+
+def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | None = None) -> FSWResult:
+    """Simulate ``scene`` from t = 0 to ``scene.time.t_end``; return an :class:`FSWResult`.
+
+    Parameters
+    ----------
+    scene : Scene
+        A validated scene (:func:`~jaxanm.fsw.scene.load_scene`, ``Scene(...)``).
+    solver : jaxanm.ANM | jaxanm.Newton | jaxanm.ModifiedNewton, optional
+        Step solver; default ``scene.solver.make()``.
+    progress : bool
+        Show a progress bar.
+    callback : callable ``(t, stats)``, optional
+        Called after every accepted step with the time reached and the run's ``jaxanm.Stats``
+        so far (e.g. a progress display).
+
+    Raises
+    ------
+    jaxanm.StepFailure, jaxanm.NonFiniteError
+        A step failed even after dt halvings (the message gives step, time and norms).
+    """
+    solver = scene.solver.make() if solver is None else solver
+    cloud = build_cloud(scene.geometry)
+    stencils = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
+    model = make_model(scene, cloud)
+    params = model.params(cloud.points, stencils)
+    x0 = model.initial_state(cloud.points)
+    tm = scene.time
+    n_steps = max(1, math.ceil(tm.t_end / tm.dt - 1e-9))
+    recorder = _Recorder(scene, model, stencils, x0, _save_steps(scene, n_steps))
+    sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver,
+                           scale=model.scale(), jacobian="sparse", sparsity=model.sparsity,
+                           save_at=[tm.t_end], after_step=recorder.after_step, progress=progress,
+                           callback=None if callback is None else (lambda t, x, stats: callback(t, stats)))
+    return recorder.result(solver, sol.stats)

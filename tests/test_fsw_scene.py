@@ -1,0 +1,253 @@
+"""FSW scenes (TOML, overrides, validation), the point cloud and the model's structure.
+
+Structure only: unknown layout per effect set, Jacobian pattern, jet compatibility, the
+Lagrangian old-value switch.  The physics is checked in tests/test_fsw_validation.py.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxanm
+from jaxanm.fsw import geometry
+from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud, build_stencils
+from jaxanm.fsw.model import make_model, mu_reference
+from jaxanm.fsw.scene import (EFFECTS, Geometry, Material, Scene, SceneError, Time, load_scene,
+                              override_keys, shipped_scenes)
+
+ALL_EULERIAN = ("inertia", "viscous", "softening", "conduction", "tool_conduction", "dissipation",
+                "robin", "tracers")
+
+
+# --------------------------------------------------------------------------------- scenes
+
+def test_shipped_scenes_load_and_paper_values():
+    assert {"fsw_paper", "fsw_tracers", "fsw_small", "couette_small", "conduction_small"} <= set(shipped_scenes())
+    for name in shipped_scenes():
+        assert load_scene(name).name == name
+    s = load_scene("fsw_paper")
+    g, m, tl, th = s.geometry, s.material, s.tool, s.thermal
+    assert (g.R1, g.R2, g.dr, g.h_factor, g.c, g.q) == (1.5e-3, 6e-3, 3.75e-4, 3.0, 0.2, 1)
+    assert (m.K, m.A, m.n, m.rho, m.Cp, m.k, m.beta) == (2.69e16, -3.3155, 0.1324, 2780, 920, 140, 0.9)
+    assert (tl.rho, tl.Cp, tl.k, tl.omega) == (7800, 450, 36, 20)
+    assert (th.h, th.Ta, th.T0) == (1000, 300, 300)
+    assert (s.time.dt, s.time.t_end) == (1e-4, 0.7)
+    assert {0.001, 0.01, 0.05, 0.08, 0.3, 0.5, 0.7} <= set(s.time.save_times)
+    assert (s.solver.kind, s.solver.order, s.solver.tol) == ("anm", 7, 1e-6)
+    assert [p.name for p in s.probes] == ["1", "2", "3"]
+    assert [x.name for x in s.sections] == ["A-A", "B-B"]
+    assert set(s.effects) == set(EFFECTS) - {"tracers"}
+    eulerian = load_scene("fsw_tracers")
+    assert set(eulerian.effects) == set(EFFECTS) - {"lagrangian"}
+    assert dataclasses.replace(eulerian, name=s.name, effects=s.effects) == s
+    # the penalty is 0.1 mu_ref, as its comment documents
+    assert s.mechanics.penalty == pytest.approx(0.1 * mu_reference(s), rel=1e-3)
+    # physics sanity numbers: K T0^A ~ 1.6e8 Pa s^n
+    assert m.K * th.T0 ** m.A == pytest.approx(1.65e8, rel=0.02)
+
+
+def test_overrides_parse_strings_and_validate():
+    s = load_scene("fsw_paper").with_overrides(
+        {"material.K": "2e16", "material.n": "0.2", "effects": "conduction, robin",
+         "time.dt": 5e-5, "geometry.dr": "7.5e-4", "solver.kind": "newton", "time.save": "0.1,0.2"})
+    assert s.material.K == 2e16 and s.material.n == 0.2 and s.time.dt == 5e-5
+    assert s.effects == ("conduction", "robin") and s.geometry.dr == 7.5e-4
+    assert isinstance(s.solver.make(), jaxanm.Newton)
+    assert s.time.save == (0.1, 0.2)
+    for key in ("material.K", "material.A", "material.n", "material.eps0", "mechanics.penalty",
+                "tool.omega", "geometry.dr", "time.dt", "time.t_end", "effects"):
+        assert key in override_keys()
+
+
+@pytest.mark.parametrize("overrides, field, allowed", [
+    ({"material.n": "-0.5"}, "material.n", "> 0"),
+    ({"material.K": "abc"}, "material.K", "real number"),
+    ({"material.K": "inf"}, "material.K", "finite"),
+    ({"geometry.R2": 1e-3}, "geometry.R2", "exceed geometry.R1"),
+    ({"geometry.dr": 3e-3}, "geometry.dr", "(R2 - R1) / 2"),
+    ({"time.dt": 0}, "time.dt", "> 0"),
+    ({"time.t_end": -1}, "time.t_end", "> 0"),
+    ({"tool.omega": "0"}, "tool.omega", "> 0"),
+    ({"mechanics.penalty": -1}, "mechanics.penalty", ">= 0"),
+    ({"geometry.layout": "hex"}, "geometry.layout", "polar"),
+    ({"solver.kind": "bdf"}, "solver.kind", "anm"),
+    ({"effects": "viscous,magic"}, "effects", "known effects"),
+    ({"effects": "dissipation,conduction"}, "effects", "needs ['viscous']"),
+    ({"effects": "viscous,lagrangian,tracers"}, "effects", "exclude each other"),
+    ({"effects": ""}, "effects", "at least one"),
+    ({"material.nn": 1}, "override key", "known keys"),
+])
+def test_bad_values_name_field_value_and_rule(overrides, field, allowed):
+    with pytest.raises(SceneError) as info:
+        load_scene("fsw_small").with_overrides(overrides)
+    msg = str(info.value)
+    assert field in msg and allowed in msg
+    assert isinstance(info.value, ValueError)
+
+
+def test_python_construction_is_validated():
+    with pytest.raises(SceneError, match="material.eps0"):
+        Material(eps0=0.0)
+    with pytest.raises(SceneError, match=r"probes\[0\] \(1\).*plate"):
+        Scene.from_dict({"probes": [{"name": "1", "x": 0.0, "y": 0.0}]})
+    with pytest.raises(SceneError, match="time.dt"):
+        Time(dt=1.0, t_end=0.5)
+    assert Time(dt=0.1, t_end=0.5, save=(0.2, 0.9)).save_times == (0.0, 0.2, 0.5)
+
+
+def test_toml_files_and_round_trip(tmp_path):
+    s = load_scene("fsw_paper")
+    assert Scene.from_dict(s.to_dict()) == s
+    path = tmp_path / "mine.toml"
+    path.write_text('name = "mine"\neffects = ["conduction"]\n[thermal]\nT0 = 500\n')
+    mine = load_scene(path)
+    assert mine.name == "mine" and mine.thermal.T0 == 500.0 and isinstance(mine.thermal.T0, float)
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[material]\nKK = 1\n')
+    with pytest.raises(SceneError, match=r"\[material\] key.*'KK'.*known keys"):
+        load_scene(bad)
+    bad.write_text('[material\n')
+    with pytest.raises(SceneError, match="not valid TOML"):
+        load_scene(bad)
+    with pytest.raises(SceneError, match="unknown scene 'nope'.*fsw_paper"):
+        load_scene("nope")
+    with pytest.raises(SceneError, match="does not exist"):
+        load_scene(tmp_path / "missing.toml")
+
+
+# --------------------------------------------------------------------------------- cloud
+
+def test_paper_cloud_layout():
+    g = load_scene("fsw_paper").geometry
+    c = build_cloud(g)
+    counts = np.bincount(c.kind, minlength=5)
+    assert c.size == 881 and list(counts) == [37, 26, 26, 692, 100]
+    r = np.hypot(*c.points.T)
+    assert np.allclose(r[c.kind == RING], g.R2) and np.allclose(r[(c.kind == TOOL_EDGE) | (c.kind == PLATE_EDGE)], g.R1)
+    assert np.all(r[c.kind == TOOL] < g.R1) and np.all((r[c.kind == PLATE] > g.R1) & (r[c.kind == PLATE] < g.R2))
+    # edge pairs coincide and point at each other; the tool subdomain comes first
+    edge = np.flatnonzero(c.kind == TOOL_EDGE)
+    assert np.all(c.partner[c.partner[edge]] == edge)
+    assert np.array_equal(c.points[edge], c.points[c.partner[edge]])
+    assert np.all(c.kind[: c.n_tool] <= TOOL_EDGE) and np.all(c.kind[c.n_tool:] >= PLATE_EDGE)
+    # colours: no plate point on y = 0, as many blue as red
+    plate = c.kind >= PLATE_EDGE
+    assert np.all(c.points[plate, 1] != 0.0)
+    assert np.all(c.material[~plate] == 0)
+    assert np.sum(c.material == 1) == np.sum(c.material == 2)
+
+
+def test_stencils_never_cross_the_tool_edge():
+    g = Geometry(dr=7.5e-4)
+    c = build_cloud(g)
+    st = build_stencils(c.points, c.n_tool, g)
+    tool_side = np.asarray(st.index) < c.n_tool
+    assert np.all(tool_side[: c.n_tool]) and not np.any(tool_side[c.n_tool:])
+    # one-sided stencils still reproduce quadratics on each side
+    f = 1.0 + 3e2 * c.points[:, 0] - 2e5 * c.points[:, 0] * c.points[:, 1]
+    val = (np.asarray(st.phi) * f[np.asarray(st.index)]).sum(1)
+    assert np.max(np.abs(val - f)) < 1e-10
+    # evaluation at targets picks the side by radius
+    targets = np.array([[0.5 * g.R1, 0.0], [1.2 * g.R1, 0.3e-3]])
+    ev = geometry.evaluate_stencils(c.points, c.n_tool, g, targets)
+    idx = np.asarray(ev.index)
+    assert np.all(idx[0] < c.n_tool) and np.all(idx[1] >= c.n_tool)
+
+
+# --------------------------------------------------------------------------------- model
+
+def _small(effects, **kw):
+    scene = Scene(effects=effects, geometry=Geometry(dr=7.5e-4), **kw)
+    cloud = build_cloud(scene.geometry)
+    st = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
+    model = make_model(scene, cloud)
+    return scene, cloud, model, model.params(cloud.points, st)
+
+
+@pytest.mark.parametrize("effects, fields", [
+    (("viscous",), ("u", "v")),
+    (("viscous", "inertia", "lagrangian"), ("u", "v")),
+    (("conduction",), ("T",)),
+    (("conduction", "tool_conduction", "robin"), ("T",)),
+    (ALL_EULERIAN, ("u", "v", "T")),
+])
+def test_unknowns_follow_effects(effects, fields):
+    scene, cloud, model, params = _small(effects)
+    assert model.fields == fields and model.size == len(fields) * cloud.size
+    x0 = model.initial_state(cloud.points)
+    with jaxanm.float64():
+        r = model.residual(x0, x0, 1e-4, 1e-4, params)
+    assert r.shape == (model.size,) and np.all(np.isfinite(np.asarray(r)))
+    scale = model.scale().reshape(len(fields), -1)
+    expected = {"u": scene.tool.omega * scene.geometry.R1, "v": scene.tool.omega * scene.geometry.R1,
+                "T": scene.thermal.T0}
+    for f, row in zip(fields, scale):
+        assert np.all(row == expected[f])
+
+
+@pytest.mark.parametrize("effects", [ALL_EULERIAN, ("inertia", "viscous", "softening", "conduction",
+                                                    "tool_conduction", "dissipation", "robin", "lagrangian")])
+def test_sparsity_pattern_covers_jacobian(effects):
+    scene, cloud, model, params = _small(effects)
+    rng = np.random.default_rng(1)
+    x = model.initial_state(cloud.points) * (1 + 0.1 * rng.standard_normal(model.size))
+    with jaxanm.float64():
+        J = np.asarray(jax.jacfwd(lambda z: model.residual(z, x, 1e-4, 1e-4, params))(jnp.asarray(x)))
+    pattern = model.sparsity(params).toarray()
+    assert not np.any((J != 0) & ~pattern)
+    assert pattern.sum() < 0.5 * pattern.size  # and it is sparse
+    # the coupling across the tool edge is in it (flux and temperature continuity)
+    N = cloud.size
+    edge = np.flatnonzero(cloud.kind == PLATE_EDGE)[0]
+    T = 2 * N
+    assert np.any(J[T + edge, T: T + cloud.n_tool] != 0)
+
+
+def test_residual_is_jet_compatible():
+    """Taylor coefficients of the residual along a line agree with nested jvps (orders 1 and 2)."""
+    scene, cloud, model, params = _small(("inertia", "viscous", "softening", "conduction",
+                                          "tool_conduction", "dissipation", "robin", "lagrangian"))
+    rng = np.random.default_rng(2)
+    x = model.initial_state(cloud.points) + 0.05 * model.scale() * rng.standard_normal(model.size)
+    d = 0.01 * model.scale() * rng.standard_normal(model.size)
+
+    def f(z):
+        return model.residual(z, x, 1e-4, 1e-4, params)
+
+    coeffs = jaxanm.taylor_coefficients(f, x, [d, np.zeros_like(d)])
+    assert all(np.all(np.isfinite(np.asarray(c))) for c in coeffs)
+    with jaxanm.float64():
+        first = jax.jvp(f, (x,), (d,))[1]
+        second = jax.jvp(lambda z: jax.jvp(f, (z,), (d,))[1], (x,), (d,))[1] / 2
+    assert np.allclose(coeffs[1], first, rtol=1e-9, atol=1e-9 * np.abs(first).max())
+    assert np.allclose(coeffs[2], second, rtol=1e-9, atol=1e-9 * np.abs(second).max())
+
+
+def test_lagrangian_old_values_switch():
+    """Carried values are used when stepping from the state the cloud moved with, else x_old."""
+    scene, cloud, model, params = _small(("conduction",))
+    lag_scene = dataclasses.replace(scene, effects=("viscous", "conduction", "lagrangian"))
+    lag = make_model(lag_scene, cloud)
+    x0 = lag.initial_state(cloud.points)
+    carried = lag.initial_values(cloud.points).copy()
+    carried[:, 2] += 10.0  # the points carry T0 + 10
+    p = lag.params(cloud.points, params["st"], old=carried, x_ref=x0)
+    N = cloud.size
+    plate = np.flatnonzero(cloud.kind == PLATE)
+    with jaxanm.float64():
+        r_fresh = np.asarray(lag.residual(x0, x0, 1e-4, 1e-4, p))[2 * N + plate]
+        other = x0.copy()
+        other[2 * N:] += 1e-3  # a halved sub-step: x_old is not x_ref
+        r_sub = np.asarray(lag.residual(x0, other, 1e-4, 1e-4, p))[2 * N + plate]
+    dr, s = scene.geometry.dr, scene.material
+    row_scale = dr ** 2 / (scene.thermal.T0 * (s.k + s.rho * s.Cp * dr ** 2 / 1e-4))
+    expected = s.rho * s.Cp * (-10.0) / 1e-4 * row_scale
+    assert np.allclose(r_fresh, expected, rtol=1e-6)
+    assert np.allclose(r_sub, s.rho * s.Cp * (-1e-3) / 1e-4 * row_scale, rtol=1e-6)
+    assert math.isfinite(expected)
