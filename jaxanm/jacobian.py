@@ -28,24 +28,20 @@ def color_columns(pattern) -> np.ndarray:
 
     Two columns get different colours whenever they have a nonzero in a common row, so
     ``J @ seed(colour)`` holds each nonzero of ``J`` once.  Columns are visited by
-    decreasing degree (largest-first greedy).  Returns ``colors`` of shape ``(n,)``.
+    decreasing degree (largest-first greedy) on the column-intersection graph ``P^T P``.
+    Returns ``colors`` of shape ``(n,)``.
     """
     csc = scipy.sparse.csc_matrix(pattern, dtype=bool)
-    csr = csc.tocsr()
     n = csc.shape[1]
+    structure = scipy.sparse.csc_matrix((np.ones(csc.nnz), csc.indices, csc.indptr), shape=csc.shape)
+    graph = (structure.T @ structure).tocsr()  # columns sharing a row are neighbours
     degree = np.diff(csc.indptr)
     colors = np.full(n, -1, dtype=np.int64)
+    stamp = np.full(n + 1, -1, dtype=np.int64)  # stamp[c] == j: colour c is taken near column j
     for j in np.argsort(-degree, kind="stable"):
-        rows = csc.indices[csc.indptr[j] : csc.indptr[j + 1]]
-        if rows.size:
-            neighbours = np.concatenate([csr.indices[csr.indptr[r] : csr.indptr[r + 1]] for r in rows])
-            used = colors[neighbours]
-            used = np.unique(used[used >= 0])
-        else:
-            used = np.empty(0, dtype=np.int64)
-        # smallest colour not used by a neighbour
-        free = np.setdiff1d(np.arange(used.size + 1), used, assume_unique=True)
-        colors[j] = free[0]
+        used = colors[graph.indices[graph.indptr[j] : graph.indptr[j + 1]]]
+        stamp[used[used >= 0]] = j
+        colors[j] = int(np.argmax(stamp != j))  # smallest colour not taken
     return colors
 
 
