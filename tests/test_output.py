@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from jaxanm.fsw import figures, output
+from jaxanm.fsw.simulate import FSWResult
 from jaxanm.stats import Stats
 
 R1, R2, OMEGA, DR = 1.5e-3, 6e-3, 20.0, 7.5e-4
@@ -45,23 +46,6 @@ class FakeSolver:
     tol: float = 1e-6
 
 
-@dataclasses.dataclass
-class FakeResult:
-    """Object with the fields of the FSWResult contract (docs/architecture.md)."""
-
-    scene: object
-    t: np.ndarray
-    points: np.ndarray
-    u: np.ndarray
-    v: np.ndarray
-    T: np.ndarray
-    material: np.ndarray
-    probes: dict
-    sections: object
-    stats: Stats
-    solver: object
-
-
 def angular_velocity(r):
     """Rigid rotation inside the tool, Couette-like decay to 0 at R2 outside."""
     r = np.asarray(r, dtype=np.float64)
@@ -85,7 +69,7 @@ def fields_at(xy0, t):
     return np.stack([x, y], axis=-1), -w * y, w * x, temperature(r, t)
 
 
-def fake_result(saved=SAVED, isothermal=False, n_steps=71) -> FakeResult:
+def fake_result(saved=SAVED, isothermal=False, n_steps=71) -> FSWResult:
     """A synthetic FSWResult: ~200 points on the disc, saved at ``saved`` times."""
     g = np.arange(-R2, R2 + DR / 2, DR)
     xx, yy = np.meshgrid(g, g)
@@ -114,7 +98,7 @@ def fake_result(saved=SAVED, isothermal=False, n_steps=71) -> FakeResult:
                   amax=list(np.linspace(1.5, 0.9, n_steps - 1)),
                   residual_norm=[1e-9] * (n_steps - 1))
     stats.close(1.25)
-    return FakeResult(FakeScene(), t, np.array(pts), np.array(u), np.array(v), T, material,
+    return FSWResult(FakeScene(), t, np.array(pts), np.array(u), np.array(v), T, material,
                       probes, None, stats, FakeSolver())
 
 
