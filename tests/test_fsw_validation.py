@@ -169,7 +169,7 @@ def test_couette_newtonian_converges():
     Ks = (6, 8, 12, 16)
     err = [couette_error(K, (1.0,), 1e-4) for K in Ks]
     slope = _slope([GAP / K for K in Ks], err)
-    # measured: 1.49e-2, 1.00e-2, 7.25e-3, 4.01e-3; slope 1.3
+    # measured: 1.49e-2, 1.00e-2, 7.25e-3, 4.01e-3; slope 1.26
     assert all(a > b for a, b in zip(err, err[1:])), err
     assert slope > 1.1, (slope, err)
     assert err[-1] < 5e-3, err
@@ -185,6 +185,23 @@ def test_couette_power_law_converges():
     assert all(a > b for a, b in zip(err, err[1:])), err
     assert slope > 1.4, (slope, err)
     assert err[-1] < 1.5e-2, err
+
+
+@pytest.mark.slow
+def test_couette_paper_exponent_converges():
+    """n = 0.1324 (the paper's): v/r ~ r^-15, a shear layer thinner than the paper's dr.
+
+    eps0 = 1e-2 as in fsw_paper: the regularised law departs from the closed form by at most
+    7.8e-4 omega R1 (1-D solution), far below these errors (about 2.5 min).
+    """
+    Ks = (12, 16, 24)
+    ns = (1.0, 0.7, 0.5, 0.4, 0.3, 0.25, 0.2, 0.17, 0.15, 0.1324)
+    err = [couette_error(K, ns, 1e-2) for K in Ks]
+    slope = _slope([GAP / K for K in Ks], err)
+    # measured: 8.07e-2, 6.78e-2, 4.02e-2 (and 2.67e-2 at K = 32); slope 1.0
+    assert all(a > b for a, b in zip(err, err[1:])), err
+    assert slope > 0.8, (slope, err)
+    assert err[-1] < 5e-2, err
 
 
 # ------------------------------------------------------------------ conduction across the jump
@@ -256,12 +273,12 @@ def test_conduction_across_tool_edge_converges():
 def test_lagrangian_motion_rigid_tool_no_loss_colours_kept():
     scene = load_scene("fsw_small").with_overrides({
         "effects": "viscous,conduction,dissipation,softening,tool_conduction,robin,lagrangian",
-        "material.n": 0.3, "time.dt": 2e-3, "time.t_end": 0.04, "time.save": "0.01,0.02,0.03",
+        "material.n": 0.3, "time.dt": 4e-3, "time.t_end": 0.04, "time.save": "0.02",
         "solver.kind": "newton"})
     res = run(scene)
     cloud = build_cloud(scene.geometry)
     g = scene.geometry
-    assert res.t.tolist() == pytest.approx([0.0, 0.01, 0.02, 0.03, 0.04])
+    assert res.t.tolist() == pytest.approx([0.0, 0.02, 0.04])
     assert np.all(np.isfinite(res.points)) and np.all(np.isfinite(res.u)) and np.all(np.isfinite(res.T))
     assert np.array_equal(res.material, cloud.material)
     rigid = np.flatnonzero(cloud.kind <= PLATE_EDGE)
@@ -284,8 +301,28 @@ def test_lagrangian_motion_rigid_tool_no_loss_colours_kept():
                   - np.arctan2(cloud.points[first, 1], cloud.points[first, 0]) + np.pi, 2 * np.pi) - np.pi
     assert np.all(turn > 0) and np.all(turn < scene.tool.omega * res.t[-1])
     assert res.T[-1].max() > scene.thermal.T0  # dissipation heated the plate
-    assert len(res.probes["t"]) == 21 and set(res.sections) == {"t", "A-A", "B-B"}
-    assert res.sections["A-A"]["T"].shape == (5, 161) and np.all(np.isfinite(res.sections["A-A"]["u"]))
+    assert len(res.probes["t"]) == 11 and set(res.sections) == {"t", "A-A", "B-B"}
+    assert res.sections["A-A"]["T"].shape == (3, 161) and np.all(np.isfinite(res.sections["A-A"]["u"]))
+
+
+@pytest.mark.slow
+def test_tracers_fixed_points_advected_particles():
+    scene = load_scene("fsw_small").with_overrides({
+        "effects": "viscous,conduction,dissipation,softening,tool_conduction,robin,tracers",
+        "material.n": 0.3, "time.dt": 4e-3, "time.t_end": 0.04, "time.save": "0.02",
+        "solver.kind": "newton"})
+    res = run(scene)
+    cloud = build_cloud(scene.geometry)
+    assert np.all(res.points == cloud.points)  # Eulerian: the cloud does not move
+    tr = res.tracers["points"]
+    assert tr.shape == (3, cloud.size, 2) and np.array_equal(res.tracers["material"], cloud.material)
+    rigid = cloud.kind <= PLATE_EDGE
+    assert np.allclose(np.hypot(*tr[-1, rigid].T), np.hypot(*cloud.points[rigid].T), rtol=1e-12)
+    r = np.hypot(*tr[-1].T)
+    plate = cloud.kind >= PLATE
+    assert np.all(r[plate] > scene.geometry.R1) and np.all(r <= scene.geometry.R2 * (1 + 1e-9))
+    moved = np.linalg.norm(tr[-1] - tr[0], axis=1)
+    assert moved[plate].max() > 0 and res.T[-1].max() > scene.thermal.T0
 
 
 # ------------------------------------------------------------------ ANM vs Newton
