@@ -32,8 +32,8 @@ def test_anm_newton_agree_and_anm_factorizes_10x_less():
     assert anm.stats.time_steps == newton.stats.time_steps == 100
     assert newton.stats.factorizations >= 10 * anm.stats.factorizations
     assert all(a >= 1.0 for a in anm.stats.amax) and len(anm.stats.amax) == 100
-    # the accepted ANM states satisfy the step equations to series accuracy
-    assert max(anm.stats.residual_norm) < 1e-4 * max(newton.stats.residual_norm[:1] + [1.0])
+    # the accepted ANM states satisfy the step equations to series accuracy (the source is O(5))
+    assert max(anm.stats.residual_norm) < 1e-4
 
 
 def test_tighter_anm_tolerance_gets_closer_to_the_exact_step_solution():
