@@ -10,7 +10,7 @@ global configuration; wrap your own jnp code in ``with jaxanm.float64():`` to ma
 
 from ._x64 import float64
 from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
-from .integrate import Solution, integrate
+from .integrate import Remap, Solution, integrate
 from .jacobian import SparseJacobian, color_columns, detect_sparsity
 from .linalg import Factorization, factorize
 from .series import taylor_coefficients
@@ -24,6 +24,7 @@ __all__ = [
     "ModifiedNewton",
     "Newton",
     "NonFiniteError",
+    "Remap",
     "SingularMatrixError",
     "Solution",
     "SparseJacobian",

@@ -18,6 +18,8 @@ import tempfile
 import jax
 import numpy as np
 
+from .errors import InputError
+
 FORMAT_VERSION = 1
 
 
@@ -45,11 +47,22 @@ def write_atomic(path, payload: dict) -> None:
 
 
 def read(path) -> dict:
-    """Load a checkpoint written by :func:`write_atomic`; checks the format version."""
-    with open(path, "rb") as fh:
-        payload = pickle.load(fh)
-    if payload.get("format") != FORMAT_VERSION:
-        raise ValueError(f"checkpoint {path} has format {payload.get('format')!r}, this jaxanm reads {FORMAT_VERSION}")
+    """Load a checkpoint written by :func:`write_atomic`; checks the format version.
+
+    Raises :class:`~jaxanm.errors.InputError` if the file is missing, is not a jaxanm
+    checkpoint, or has another format version.
+    """
+    try:
+        with open(path, "rb") as fh:
+            payload = pickle.load(fh)
+    except FileNotFoundError as exc:
+        raise InputError(f"no checkpoint at {path}: nothing to resume (start the run without resume)") from exc
+    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError) as exc:
+        raise InputError(f"{path} is not a readable jaxanm checkpoint ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT_VERSION:
+        found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
+        raise InputError(f"checkpoint {path} has format {found!r}, this jaxanm reads {FORMAT_VERSION}; "
+                         "resume it with the jaxanm version that wrote it, or start afresh")
     return payload
 
 
@@ -57,19 +70,60 @@ class Interrupted(KeyboardInterrupt):
     """Raised inside a run when SIGTERM arrives, so that the run can checkpoint and stop."""
 
 
+class SignalGuard:
+    """Defers SIGINT/SIGTERM while a run records an accepted step (see :func:`sigterm_as_interrupt`).
+
+    Between :meth:`hold` and :meth:`release` a signal does not interrupt: it is remembered and
+    raised by :meth:`release`, so an interruption never falls between accepting a step and
+    recording it (the state written to a checkpoint is then always one consistent step).
+    ``held`` is true inside such a block; a run that fails there (an exception from its own
+    bookkeeping, not from a signal) must not write a checkpoint of a half-recorded step.
+    """
+
+    def __init__(self):
+        self.held = False
+        self.pending = None
+
+    def hold(self) -> None:
+        """Start a block in which signals are deferred."""
+        self.held = True
+
+    def release(self) -> None:
+        """End the block; raise the interruption that arrived during it, if any."""
+        self.held = False
+        if self.pending is not None:
+            exc, self.pending = self.pending, None
+            raise exc
+
+    def _handler(self, signum, frame):
+        exc = Interrupted(f"received signal {signum}") if signum == signal.SIGTERM else KeyboardInterrupt()
+        if self.held:
+            self.pending = exc
+            return
+        raise exc
+
+
 @contextlib.contextmanager
 def sigterm_as_interrupt():
-    """Turn SIGTERM into :class:`Interrupted` for the duration of the block (main thread only)."""
+    """Turn SIGTERM into :class:`Interrupted` for the duration of the block; yield a :class:`SignalGuard`.
+
+    SIGINT keeps raising ``KeyboardInterrupt`` (its handler is replaced only if it is Python's
+    default one), and both signals are deferred inside ``guard.hold() ... guard.release()``.
+    Outside the main thread signals are left alone and the guard never defers.
+    """
+    guard = SignalGuard()
     try:
-        previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+        previous_term = signal.signal(signal.SIGTERM, guard._handler)
     except ValueError:  # not in the main thread: leave signals alone
-        yield
+        yield guard
         return
+    previous_int = signal.getsignal(signal.SIGINT)
+    own_int = previous_int is signal.default_int_handler
+    if own_int:
+        signal.signal(signal.SIGINT, guard._handler)
     try:
-        yield
+        yield guard
     finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-def _raise_interrupted(signum, frame):
-    raise Interrupted(f"received signal {signum}")
+        signal.signal(signal.SIGTERM, previous_term)
+        if own_int:
+            signal.signal(signal.SIGINT, previous_int)

@@ -3,7 +3,8 @@
 ::
 
     jaxanm run [SCENE] [--t-end S] [--solver anm|newton|mnewton] [--order P] [--tol X]
-               [--set KEY=VALUE ...] [--out DIR] [--no-progress]
+               [--set KEY=VALUE ...] [--out DIR] [--checkpoint-every N] [--no-progress]
+    jaxanm run --resume DIR [--checkpoint-every N] [--no-progress]
     jaxanm scenes
 
 ``SCENE`` is a shipped scene name or a TOML path (default ``fsw_paper``).  ``--set`` overrides
@@ -13,9 +14,17 @@ any scene field by dotted key (``--set material.K=2e16 --set effects=viscous,con
 overrides.  Results go to ``--out`` (default ``results/<scene>-<solver>``), see
 :func:`jaxanm.fsw.output.write_outputs`.
 
-Exit status: 0 on success, 2 on bad input (unknown scene, malformed ``--set``, invalid value;
-one ``jaxanm: error: ...`` line on stderr, no traceback), 1 when the solver fails or the
-results cannot be written, 130 when interrupted.
+Checkpoints: ``--checkpoint-every N`` writes ``DIR/checkpoint.pkl`` atomically every N time
+steps, at the end, and when the run is interrupted (SIGINT/Ctrl-C, SIGTERM) or fails.  It holds
+the scene (solver settings included), the solver's state, K* and every result recorded so far,
+so ``jaxanm run --resume DIR`` needs no other argument and ends with the same files as an
+uninterrupted run (bit-identical fields on the same machine).  Options given with ``--resume``
+must agree with the stored scene (else exit 2 naming the differing fields).  An interrupted or
+failed run also writes the results of the steps done so far into DIR.
+
+Exit status: 0 on success, 2 on bad input (unknown scene, malformed ``--set``, invalid value,
+unusable checkpoint; one ``jaxanm: error: ...`` line on stderr, no traceback), 1 when the
+solver fails or the results cannot be written, 130 when interrupted.
 """
 
 from __future__ import annotations
@@ -30,6 +39,8 @@ from jaxanm.errors import InputError, SingularMatrixError, StepFailure
 
 PROG = "jaxanm"
 DEFAULT_SCENE = "fsw_paper"
+CHECKPOINT_NAME = "checkpoint.pkl"
+"""File name of the checkpoint inside the output directory."""
 SOLVER_KINDS = {"anm": "anm", "newton": "newton", "mnewton": "modified_newton"}
 """Command-line solver names -> ``solver.kind`` of the scene."""
 
@@ -58,8 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run a scene and write its results",
                          description="Run an FSW scene and write summary.json, fields.npz, "
                          "probes.csv, VTU/PVD files and the paper's figures.")
-    run.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
-                     help=f"shipped scene name or path to a scene TOML file (default {DEFAULT_SCENE})")
+    run.add_argument("scene", nargs="?", default=None,
+                     help=f"shipped scene name or path to a scene TOML file (default {DEFAULT_SCENE}; "
+                     "with --resume: the scene stored in the checkpoint)")
     run.add_argument("--t-end", type=float, metavar="S", help="end time in s (time.t_end)")
     run.add_argument("--solver", choices=tuple(SOLVER_KINDS),
                      help="nonlinear step solver (solver.kind; mnewton = modified Newton)")
@@ -70,6 +82,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="override a scene field by dotted key, e.g. material.K=2e16 (repeatable)")
     run.add_argument("--out", type=Path, metavar="DIR",
                      help="output directory (default results/<scene>-<solver>)")
+    run.add_argument("--checkpoint-every", type=_positive_int, metavar="N",
+                     help=f"write DIR/{CHECKPOINT_NAME} every N time steps (and on interruption)")
+    run.add_argument("--resume", type=Path, metavar="DIR",
+                     help=f"continue the run whose {CHECKPOINT_NAME} is in DIR (scene and solver "
+                     "come from the checkpoint; results go to DIR)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=_cmd_run)
 
@@ -77,6 +94,17 @@ def build_parser() -> argparse.ArgumentParser:
                             description="List the shipped scenes with their effects and end time.")
     scenes.set_defaults(func=_cmd_scenes)
     return parser
+
+
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
 
 
 def parse_overrides(items: list[str]) -> dict[str, str]:
@@ -97,12 +125,16 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
     return overrides
 
 
-def load_run_scene(args: argparse.Namespace):
-    """Load ``args.scene`` and apply ``--set`` overrides, then the shorthand options."""
+def load_run_scene(args: argparse.Namespace, base=None):
+    """Load ``args.scene`` (else ``base``, else the default scene) and apply ``--set``
+    overrides, then the shorthand options."""
     overrides = parse_overrides(args.overrides)
     shorthands = {"time.t_end": args.t_end, "solver.order": args.order, "solver.tol": args.tol,
                   "solver.kind": SOLVER_KINDS.get(args.solver)}
-    scene = _load_scene(args.scene)
+    if args.scene is not None or base is None:
+        scene = _load_scene(args.scene or DEFAULT_SCENE)
+    else:
+        scene = base
     if overrides:
         scene = scene.with_overrides(overrides)
     shorthands = {k: v for k, v in shorthands.items() if v is not None}
@@ -145,11 +177,59 @@ def _load_scene(name_or_path):
     return load_scene(name_or_path)
 
 
-def _simulate(scene, callback):
-    """:func:`jaxanm.fsw.simulate.run` with the CLI's progress callback (imported on first use)."""
+def _simulate(scene, callback, **checkpointing):
+    """:func:`jaxanm.fsw.simulate.run` with the CLI's progress callback (imported on first use).
+
+    ``checkpointing``: ``checkpoint``, ``checkpoint_every``, ``resume`` of ``run``.
+    """
     from jaxanm.fsw.simulate import run
 
-    return run(scene, solver=None, progress=False, callback=callback)
+    return run(scene, solver=None, progress=False, callback=callback, **checkpointing)
+
+
+def _gave_scene_options(args: argparse.Namespace) -> bool:
+    """Whether the command line names a scene, ``--set`` overrides or a shorthand option."""
+    return (args.scene is not None or bool(args.overrides)
+            or any(v is not None for v in (args.t_end, args.solver, args.order, args.tol)))
+
+
+def _resume_plan(args: argparse.Namespace):
+    """``(scene, out_dir, checkpoint_every)`` of ``--resume DIR`` from the stored checkpoint.
+
+    Options given alongside must describe the stored scene exactly (else :class:`UsageError`
+    naming the differing fields); ``--out``, if given, must be DIR.
+    """
+    from jaxanm.checkpoint import read
+    from jaxanm.fsw.scene import Scene
+    from jaxanm.fsw.simulate import scene_differences
+
+    out_dir = args.resume
+    path = out_dir / CHECKPOINT_NAME
+    if not path.is_file():
+        raise UsageError(f"--resume {out_dir}: no {CHECKPOINT_NAME} there; start the run with "
+                         f"--checkpoint-every N --out {out_dir} to make one")
+    host = read(path).get("host_state")
+    if not (isinstance(host, dict) and isinstance(host.get("scene"), dict)):
+        raise UsageError(f"--resume {out_dir}: {path} was not written by 'jaxanm run' (no scene stored)")
+    try:
+        stored = Scene.from_dict(host["scene"], source=str(path))
+    except ValueError as exc:
+        raise UsageError(f"--resume {out_dir}: the stored scene is invalid: {exc}") from exc
+    if _gave_scene_options(args):
+        try:
+            requested = load_run_scene(args, base=stored)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from exc
+        if requested != stored:
+            raise UsageError(f"--resume {out_dir}: the checkpoint holds scene {stored.name!r}; the options given "
+                             f"change {scene_differences(host['scene'], requested)}; drop them to resume, "
+                             "or start a fresh run in another --out directory")
+    if args.out is not None and args.out.resolve() != out_dir.resolve():
+        raise UsageError(f"--out {args.out} conflicts with --resume {out_dir}: a resumed run writes into {out_dir}")
+    every = args.checkpoint_every
+    if every is None:
+        every = int(host.get("settings", {}).get("checkpoint_every", 0))
+    return stored, out_dir, every
 
 
 def _write_outputs(result, out_dir, solver_settings):
@@ -160,15 +240,33 @@ def _write_outputs(result, out_dir, solver_settings):
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    """``jaxanm run``: load, override, simulate with a progress bar, write the results."""
-    try:
-        scene = load_run_scene(args)
-    except ValueError as exc:  # SceneError: unknown scene, bad key or value
-        raise UsageError(str(exc)) from exc
-    out_dir = args.out or Path("results") / f"{scene.name}-{scene.solver.kind}"
+    """``jaxanm run``: load, override (or resume), simulate with a progress bar, write the results."""
+    if args.resume is not None:
+        scene, out_dir, every = _resume_plan(args)
+    else:
+        try:
+            scene = load_run_scene(args)
+        except ValueError as exc:  # SceneError: unknown scene, bad key or value
+            raise UsageError(str(exc)) from exc
+        out_dir = args.out or Path("results") / f"{scene.name}-{scene.solver.kind}"
+        every = args.checkpoint_every or 0
+    checkpointing = {}
+    if every or args.resume is not None:
+        checkpointing = {"checkpoint": out_dir / CHECKPOINT_NAME, "checkpoint_every": every,
+                         "resume": args.resume is not None}
     bar = None if args.no_progress else ProgressBar(scene.time.t_end, scene.name)
     try:
-        result = _simulate(scene, bar)
+        result = _simulate(scene, bar, **checkpointing)
+    except KeyboardInterrupt as exc:
+        if bar is not None:
+            bar.close()
+            bar = None
+        return _error(_stopped("interrupted", exc, out_dir, scene, checkpointing), 130)
+    except (StepFailure, SingularMatrixError) as exc:
+        if bar is not None:
+            bar.close()
+            bar = None
+        return _error(_stopped(f"solver failed: {exc}", exc, out_dir, scene, checkpointing), 1)
     finally:
         if bar is not None:
             bar.close()
@@ -182,6 +280,28 @@ def _cmd_run(args: argparse.Namespace) -> int:
           f"{stats.wall_time_s:.1f} s wall")
     print(f"{len(paths)} files written to {out_dir}")
     return 0
+
+
+def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> str:
+    """One-line report of a run that stopped early; writes the partial results it carries."""
+    parts = [what]
+    partial = getattr(exc, "partial", None)
+    if partial is not None:
+        logger = logging.getLogger("jaxanm")
+        level = logger.level
+        logger.setLevel(logging.WARNING)  # the error line says what was written: no per-figure notes
+        try:
+            from jaxanm.fsw.output import end_time
+
+            paths = _write_outputs(partial, out_dir, {"kind": scene.solver.kind, "options": partial.solver})
+            parts.append(f"results up to t = {end_time(partial):.6g} s ({len(paths)} files) written to {out_dir}")
+        except OSError as err:
+            parts.append(f"cannot write the results so far to {out_dir}: {err}")
+        finally:
+            logger.setLevel(level)
+    if checkpointing:
+        parts.append(f"resume with: jaxanm run --resume {out_dir}")
+    return "; ".join(parts)
 
 
 def _cmd_scenes(args: argparse.Namespace) -> int:

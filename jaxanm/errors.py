@@ -2,35 +2,52 @@
 
 from __future__ import annotations
 
+import math
+
 
 class InputError(ValueError):
     """Invalid input detected before any computation; the message names the field and the fix."""
 
 
+def _number(value) -> str:
+    """``value`` for a message: 3 significant digits, ``n/a`` when unknown (``None``)."""
+    if value is None:
+        return "n/a"
+    value = float(value)
+    return f"{value:.3g}" if math.isfinite(value) else str(value)
+
+
 class StepFailure(RuntimeError):
     """A time step could not be completed by the nonlinear solver.
 
-    Attributes ``step``, ``t``, ``amax`` and ``residual_norm`` locate and quantify the failure
-    (``amax`` is ``None`` for Newton solvers).
+    Attributes ``step``, ``t``, ``amax`` and ``residual_norm`` locate and quantify the failure.
+    The message always names all four::
+
+        step 3 (t = 0.0003): series diverged; a_max = 0.001, |R|_inf = 2.5
+
+    ``amax`` is ``None`` (printed ``n/a``) for Newton solvers, and ``residual_norm`` is ``None``
+    when no residual was evaluated at the failing state; a non-finite norm is printed as
+    ``nan`` or ``inf``.
     """
 
     def __init__(self, reason: str, *, step: int, t: float, amax=None, residual_norm=None):
         self.reason = reason
         self.step = step
-        self.t = t
-        self.amax = amax
-        self.residual_norm = residual_norm
-        parts = [f"step {step} (t = {t:.6g})", reason]
-        if amax is not None:
-            parts.append(f"a_max = {amax:.3g}")
-        if residual_norm is not None:
-            parts.append(f"|R|_inf = {residual_norm:.3g}")
-        super().__init__(": ".join(parts[:2]) + ("; " + ", ".join(parts[2:]) if parts[2:] else ""))
+        self.t = float(t)
+        self.amax = None if amax is None else float(amax)
+        self.residual_norm = None if residual_norm is None else float(residual_norm)
+        super().__init__(f"step {step} (t = {self.t:.6g}): {reason}; "
+                         f"a_max = {_number(self.amax)}, |R|_inf = {_number(self.residual_norm)}")
 
 
 class NonFiniteError(StepFailure):
-    """A NaN or infinity appeared in a residual, a Jacobian or a series coefficient."""
+    """A NaN or infinity appeared in a residual, a Jacobian, a series coefficient or a state."""
 
 
 class SingularMatrixError(RuntimeError):
-    """The tangent matrix K* could not be factorised (exactly singular or non-finite)."""
+    """The tangent matrix K* could not be factorised (exactly singular or non-finite).
+
+    Raised by :class:`jaxanm.Factorization`; inside a time step the solvers turn it into a
+    :class:`StepFailure` (singular) or :class:`NonFiniteError` (non-finite entries) that
+    carries step, time, a_max and residual norm.
+    """

@@ -7,7 +7,7 @@ import math
 import os
 import time
 import warnings
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -16,13 +16,27 @@ import scipy.sparse
 
 from ._x64 import entry_point
 from .checkpoint import read, sigterm_as_interrupt, to_host, write_atomic
-from .errors import InputError, StepFailure
+from .errors import InputError, NonFiniteError, StepFailure
 from .jacobian import detect_sparsity
 from .linalg import Factorization
 from .solvers import ANM, ModifiedNewton, Newton, Problem
 from .stats import Stats
 
 _AUTO_SPARSE_SIZE = 400  # above this many unknowns "auto" picks the sparse Jacobian
+
+
+class Remap(NamedTuple):
+    """Returned by an ``after_step`` hook that changed the discretisation (e.g. moved points and
+    rebuilt stencils): the new ``params`` and the accepted state mapped onto them.
+
+    The next step starts its homotopy (or Newton iteration) from ``x`` and takes ``x`` as its
+    old state, so a remapping that preserves the fields (``x`` such that the new operators
+    reproduce the values the old ones gave) leaves only the physical change in the next
+    residual.  ``x`` must keep the shape of the state.
+    """
+
+    params: object
+    x: np.ndarray
 
 
 @dataclasses.dataclass
@@ -107,7 +121,7 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
               save_at=None, save_params: bool = False, after_step: Callable | None = None,
               observe: Callable | None = None, progress: bool = False, callback: Callable | None = None,
               max_dt_halvings: int = 4, checkpoint=None, checkpoint_every: int = 0,
-              resume: bool = False) -> Solution:
+              resume: bool = False, host_state: tuple | None = None) -> Solution:
     """Integrate ``R(x_new, x_old, t_new, dt, params) = 0`` by implicit Euler steps from t0 to t1.
 
     Parameters
@@ -133,9 +147,10 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         Save every k-th step, or at the steps nearest to the given times (t0 and t1 always).
     save_params : bool
         Also keep ``params`` at the saved times (e.g. moving point clouds).
-    after_step : callable ``(t_new, x_new, params) -> params``
-        Host hook after every accepted step (Lagrangian motion, stencil rebuild).  The arrays
-        it returns must keep their shapes and dtypes.
+    after_step : callable ``(t_new, x_new, params) -> params | Remap(params, x)``
+        Host hook after every accepted step (Lagrangian motion, stencil rebuild).  Return
+        :class:`Remap` to also replace the state (e.g. refitted to rebuilt stencils).  The
+        arrays it returns must keep their shapes and dtypes.
     observe : callable ``(t, x, params) -> dict of arrays``
         Quantities recorded at t0 and after every accepted step (probe histories); returned
         in ``Solution.observed`` as ``{"t": (M,), key: (M, ...)}`` and kept in checkpoints.
@@ -152,6 +167,13 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         Continue from ``checkpoint`` if it exists; the continued run is bit-identical to an
         uninterrupted one (K* is re-factorised from its stored matrix, counted in
         ``stats.resumes``, not in ``factorizations``).
+    host_state : ``(get, set)`` pair of callables, optional
+        State kept on the host outside ``x`` and ``params`` (e.g. the recorder of the FSW
+        layer: probe histories, saved fields, moving points).  ``get()`` returns a picklable
+        snapshot, stored in every checkpoint; on resume ``set(snapshot)`` restores it before
+        the first step.  ``get`` is only called between steps, never while a step is being
+        recorded (SIGINT/SIGTERM are deferred then), so the snapshot always belongs to the
+        checkpoint's step.
 
     Returns
     -------
@@ -162,14 +184,18 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     InputError
         Invalid arguments, before any computation.
     StepFailure, NonFiniteError
-        A step failed even after ``max_dt_halvings`` halvings; the message gives step, time,
-        a_max and residual norm.
+        A step failed even after ``max_dt_halvings`` halvings, or an accepted state or its
+        residual is not finite; the message gives step, time, a_max and residual norm.  The
+        exception (and a ``KeyboardInterrupt``) carries the run's statistics so far as ``stats``.
     """
     x0, scale = _validate(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at)
     if checkpoint_every and checkpoint is None:
         raise InputError("checkpoint_every needs a checkpoint path: pass checkpoint='run.ckpt'")
     if resume and checkpoint is None:
         raise InputError("resume=True needs the checkpoint path to resume from")
+    if host_state is not None and not (isinstance(host_state, tuple) and len(host_state) == 2
+                                       and all(callable(f) for f in host_state)):
+        raise InputError("host_state must be a (get, set) pair of callables")
     params = _params_float64(params)
     start = time.perf_counter()
     n = x0.size
@@ -186,7 +212,12 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
                     ps=[params] if save_params else None, observed=_observation(observe, t0, x0, params, None))
     kstar = None
     if resume and os.path.exists(checkpoint):
-        run, kstar = _RunState.load(checkpoint, fingerprint)
+        run, kstar, host = _RunState.load(checkpoint, fingerprint)
+        if host_state is not None:
+            if host is None:
+                raise InputError(f"checkpoint {checkpoint} holds no host state, but this run needs one; "
+                                 "it was written by another kind of run: start afresh")
+            host_state[1](host)
     stats = run.stats
     previous_wall = stats.wall_time_s
     stepper = solver.init(Problem(residual, scale, stats, jacobian, sparsity))
@@ -197,30 +228,48 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     bar = _progress_bar(n_steps, t1 - t0, progress, initial=run.k)
 
     def advance(x, t, h, step, depth):
-        """One step of size h, split in halves on failure."""
+        """One step of size h, split in halves on failure; returns the state and |R|_inf there.
+
+        The residual of the accepted state is evaluated with the (sub-)step it solved; a
+        non-finite state or residual is a :class:`NonFiniteError` (and is halved like any
+        failed step).
+        """
         try:
-            return stepper.step(step, x, jnp.float64(t + h), jnp.float64(h), run.params)
+            t_new, h_new = jnp.float64(t + h), jnp.float64(h)
+            x_new = stepper.step(step, x, t_new, h_new, run.params)
+            r_norm = float(np.max(np.abs(stepper.problem.residual(x_new, x, t_new, h_new, run.params))))
+            if not (np.isfinite(r_norm) and np.all(np.isfinite(x_new))):
+                raise NonFiniteError(f"the accepted state has {int(np.sum(~np.isfinite(x_new)))} non-finite "
+                                     "entries or a non-finite residual", step=step, t=t_new,
+                                     amax=stats.amax[-1] if stats.amax and stepper.reuses_kstar else None,
+                                     residual_norm=r_norm)
+            return x_new, r_norm
         except StepFailure:
             if depth >= max_dt_halvings:
                 raise
             stats.dt_halvings += 1
-            xm = advance(x, t, h / 2, step, depth + 1)
+            xm, _ = advance(x, t, h / 2, step, depth + 1)
             return advance(xm, t + h / 2, h / 2, step, depth + 1)
 
     def save_checkpoint():
         stats.close(previous_wall + time.perf_counter() - start)
-        run.dump(checkpoint, fingerprint, getattr(stepper.fact, "matrix", None) if stepper.reuses_kstar else None)
+        run.dump(checkpoint, fingerprint, getattr(stepper.fact, "matrix", None) if stepper.reuses_kstar else None,
+                 host=None if host_state is None else host_state[0]())
 
+    guard = None
     try:
-        with sigterm_as_interrupt():
+        with sigterm_as_interrupt() as guard:
             for k in range(run.k + 1, n_steps + 1):
                 t_new = t0 + k * dt if k < n_steps else float(t1)
-                x_new = advance(run.x, run.t, t_new - run.t, k, 0)
-                r = stepper.problem.residual(x_new, run.x, jnp.float64(t_new), jnp.float64(t_new - run.t), run.params)
-                stats.residual_norm.append(float(np.max(np.abs(r))))
+                x_new, r_norm = advance(run.x, run.t, t_new - run.t, k, 0)
+                guard.hold()  # from here to release(): signals wait, the step is recorded whole
+                stats.residual_norm.append(r_norm)
                 stats.time_steps += 1
                 params_new = run.params if after_step is None else after_step(t_new, x_new, run.params)
+                if isinstance(params_new, Remap):
+                    params_new, x_new = params_new.params, _remapped_state(params_new.x, x_new)
                 run.advance(k, t_new, x_new, params_new, saved=k in saves, observe=observe)
+                guard.release()
                 if callback is not None:
                     callback(t_new, x_new, stats)
                 if bar is not None:
@@ -228,9 +277,11 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
                     bar.set_postfix(t=f"{t_new:.4g}", factorizations=stats.factorizations, refresh=False)
                 if checkpoint_every and k % checkpoint_every == 0:
                     save_checkpoint()
-    except BaseException:
-        if checkpoint is not None:
+    except BaseException as exc:
+        if checkpoint is not None and not (guard is not None and guard.held):  # not if recording a step itself failed
             save_checkpoint()  # keep everything computed up to the last accepted step
+        if isinstance(exc, (StepFailure, KeyboardInterrupt)):
+            exc.stats = stats  # the work done until the failure (factorisations, halvings, ...)
         raise
     finally:
         if bar is not None:
@@ -240,6 +291,15 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         save_checkpoint()
     observed = None if observe is None else {key: np.asarray(v) for key, v in run.observed.items()}
     return Solution(ts=np.asarray(run.ts), xs=np.asarray(run.xs), stats=stats, params=run.ps, observed=observed)
+
+
+def _remapped_state(x, like):
+    """The state an ``after_step`` hook returned in :class:`Remap`, checked like ``x0``."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.shape != like.shape or not np.all(np.isfinite(x)):
+        raise InputError(f"after_step returned a Remap state of shape {x.shape} with "
+                         f"{int(np.sum(~np.isfinite(x)))} non-finite entries; it must be finite with shape {like.shape}")
+    return x
 
 
 def _observation(observe, t, x, params, observed):
@@ -279,10 +339,10 @@ class _RunState:
                 self.ps.append(params)
         self.observed = _observation(observe, t, x, params, self.observed)
 
-    def dump(self, path, fingerprint: dict, kstar) -> None:
-        """Write the state (and the current K* matrix) to a checkpoint file."""
+    def dump(self, path, fingerprint: dict, kstar, host=None) -> None:
+        """Write the state, the current K* matrix and the caller's host state to a checkpoint file."""
         payload = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        payload.update(fingerprint=fingerprint, kstar=kstar, params=to_host(self.params))
+        payload.update(fingerprint=fingerprint, kstar=kstar, params=to_host(self.params), host_state=host)
         payload["ps"] = None if self.ps is None else [to_host(p) for p in self.ps]
         write_atomic(path, payload)
 
@@ -296,7 +356,7 @@ class _RunState:
                 f"({fingerprint}); use a fresh output directory or the same settings"
             )
         fields = {f.name: payload[f.name] for f in dataclasses.fields(cls)}
-        return cls(**fields), payload["kstar"]
+        return cls(**fields), payload["kstar"], payload.get("host_state")
 
 
 def _progress_bar(n_steps, span, enabled, initial=0):

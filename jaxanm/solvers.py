@@ -16,7 +16,7 @@ import jax
 import numpy as np
 import scipy.sparse
 
-from .errors import InputError, NonFiniteError, StepFailure
+from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
 from .jacobian import SparseJacobian, dense_jacobian_function
 from .linalg import Factorization, factorize
 from .series import path_coefficients
@@ -90,6 +90,17 @@ class Problem:
         """Tangent at ``x`` factorised on the host (counted)."""
         return factorize(self.tangent(x, x_old, t, dt, params), self.stats)
 
+    def factorize_in_step(self, step, x, x_old, t, dt, params, *, amax=None, residual_norm=None) -> Factorization:
+        """:meth:`factorize_at` inside time step ``step``: a tangent that cannot be factorised
+        raises :class:`NonFiniteError` (NaN/inf entries) or :class:`StepFailure` (singular),
+        located by step and time and carrying a_max and the residual norm."""
+        try:
+            return self.factorize_at(x, x_old, t, dt, params)
+        except SingularMatrixError as exc:
+            kind = NonFiniteError if "non-finite" in str(exc) else StepFailure
+            raise kind(f"tangent matrix K* cannot be factorised ({exc})", step=step, t=t, amax=amax,
+                       residual_norm=residual_norm) from exc
+
     def norm(self, v) -> float:
         """2-norm of ``v / scale`` (non-dimensional unknowns)."""
         return float(np.linalg.norm(v / self.scale))
@@ -101,9 +112,12 @@ def _pattern_key(pattern):
     return (csr.shape, csr.nnz, hash(csr.indptr.tobytes()), hash(csr.indices.tobytes()))
 
 
-def validity_range(coeffs: np.ndarray, scale, tol: float) -> float:
+def validity_range(coeffs: np.ndarray, scale, tol: float, state=None) -> float:
     """a_max of eq. 26: ``(tol ||c_1|| / ||c_p||)^(1/(p-1))`` on the scaled unknowns.
 
+    With ``state`` (the series' starting point d_s), the larger of eq. 26 and the range where
+    the last term stays below ``tol`` relative to the state, ``(tol ||d_s|| / ||c_p||)^(1/p)``
+    (the criterion of :class:`ANM` with ``criterion="state"``).
     ``inf`` when the last coefficient vanishes (the series is exact); ``0`` when the first does
     not but a coefficient is non-finite.
     """
@@ -114,7 +128,10 @@ def validity_range(coeffs: np.ndarray, scale, tol: float) -> float:
         return 0.0
     if npp == 0.0:
         return np.inf
-    return float((tol * n1 / npp) ** (1.0 / (p - 1)))
+    amax = float((tol * n1 / npp) ** (1.0 / (p - 1)))
+    if state is not None:
+        amax = max(amax, float((tol * np.linalg.norm(state / scale) / npp) ** (1.0 / p)))
+    return amax
 
 
 def evaluate_series(coeffs: np.ndarray, a: float) -> np.ndarray:
@@ -148,16 +165,30 @@ class ANM:
     max_substeps : int
         Continuation sub-steps allowed within one time step (each after a fresh K*
         still gave a_max < 1) before the step is declared failed (then ``integrate`` halves dt).
+    criterion : {"increment", "state"}
+        What ``tol`` is relative to.  ``"increment"`` is the paper's eq. 26: the last term is
+        ``tol`` times the first-order increment ``c_1``.  ``"state"`` also accepts a range where
+        the last term is below ``tol`` times the state ``d_s`` (:func:`validity_range`), the
+        same yardstick as Newton's ``|dx| / |x| < delta``.  Eq. 26 is scale-free in the size
+        of the step's residual: once ``R(d_s)`` is tiny, a stale K* still gives the same
+        a_max, so quasi-steady steps refactorise to resolve increments far below the state's
+        accuracy (docs/notes/anm_on_fsw_paper.md).
     """
 
     order: int = 7
     tol: float = 1e-6
     max_substeps: int = 50
+    criterion: str = "increment"
 
     def __post_init__(self):
-        _check_count("ANM", "order", self.order, 2)
+        if not (isinstance(self.order, (int, np.integer)) and not isinstance(self.order, bool) and self.order >= 2):
+            raise InputError(f"ANM.order must be an integer >= 2, got {self.order!r}: the validity range a_max "
+                             "of eq. 26 compares c_1 with c_p and takes the 1/(p-1)-th root, undefined for p = 1 "
+                             "(an order-1 series is one linearised step: use jaxanm.ModifiedNewton for that)")
         _check_tol("ANM", self.tol)
         _check_count("ANM", "max_substeps", self.max_substeps, 0)
+        if self.criterion not in ("increment", "state"):
+            raise InputError(f"ANM.criterion must be 'increment' (eq. 26) or 'state', got {self.criterion!r}")
 
     def init(self, problem: Problem) -> "_ANMStepper":
         """Stepper carrying K* across time steps."""
@@ -177,14 +208,16 @@ class _ANMStepper:
         d_s = np.array(x_old, dtype=np.float64)
         fresh = False
         substeps = 0
+        amax = None  # of the previous series in this step (reported if a later one fails)
         while True:
-            if self.fact is None:
-                self.fact = P.factorize_at(d_s, x_old, t, dt, params)
-                fresh = True
             r0 = P.residual(d_s, x_old, t, dt, params)
             r0_norm = float(np.max(np.abs(r0)))
             if not np.isfinite(r0_norm):
-                raise NonFiniteError("residual at the start of the series is not finite", step=step, t=t)
+                raise NonFiniteError("residual at the start of the series is not finite", step=step, t=t,
+                                     amax=amax, residual_norm=r0_norm)
+            if self.fact is None:
+                self.fact = P.factorize_in_step(step, d_s, x_old, t, dt, params, amax=amax, residual_norm=r0_norm)
+                fresh = True
             coeffs = np.zeros((p, d_s.size))
             with st.timer("solve"):
                 coeffs[0] = -self.fact.solve(r0)
@@ -192,7 +225,8 @@ class _ANMStepper:
                 rj = P.series(d_s, coeffs[: p - 1], x_old, t, dt, params)[j - 2]
                 with st.timer("solve"):
                     coeffs[j - 1] = coeffs[j - 2] - self.fact.solve(rj)
-            amax = validity_range(coeffs, P.scale, self.opts.tol)
+            amax = validity_range(coeffs, P.scale, self.opts.tol,
+                                  state=d_s if self.opts.criterion == "state" else None)
             if amax >= 1.0:
                 st.amax.append(amax)
                 return d_s + coeffs.sum(axis=0)
@@ -202,12 +236,12 @@ class _ANMStepper:
             if not np.all(np.isfinite(coeffs)):
                 raise NonFiniteError("series coefficients are not finite with a fresh K*", step=step, t=t,
                                      amax=amax, residual_norm=r0_norm)
-            substeps += 1
-            st.substeps += 1
-            if substeps > self.opts.max_substeps or amax < 1e-12:
-                raise StepFailure(f"series from a fresh K* cannot reach a = 1 after {substeps - 1} "
+            if substeps >= self.opts.max_substeps or amax < 1e-12:
+                raise StepFailure(f"series from a fresh K* cannot reach a = 1 after {substeps} "
                                   f"continuation sub-steps (max_substeps = {self.opts.max_substeps})",
                                   step=step, t=t, amax=amax, residual_norm=r0_norm)
+            substeps += 1
+            st.substeps += 1  # counted when taken (a refused sub-step is a failure, not a sub-step)
             d_s = d_s + evaluate_series(coeffs, amax)  # continuation: restart the homotopy there
             fresh = False
 
@@ -276,10 +310,10 @@ class _NewtonStepper:
             r = P.residual(x, x_old, t, dt, params)
             r_norm = float(np.max(np.abs(r)))
             if not np.isfinite(r_norm):
-                raise NonFiniteError("Newton residual is not finite", step=step, t=t)
+                raise NonFiniteError("Newton residual is not finite", step=step, t=t, residual_norm=r_norm)
             just_factored = self.fact is None or not self.reuse
             if just_factored:
-                self.fact = P.factorize_at(x, x_old, t, dt, params)
+                self.fact = P.factorize_in_step(step, x, x_old, t, dt, params, residual_norm=r_norm)
             with st.timer("solve"):
                 dx = -self.fact.solve(r)
             size = P.norm(dx)

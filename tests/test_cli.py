@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -45,8 +46,8 @@ def fake_run(monkeypatch):
     """Replace the simulation by a fake; returns the dict of what it was called with."""
     calls = {}
 
-    def simulate(scene, callback):
-        calls["scene"], calls["callback"] = scene, callback
+    def simulate(scene, callback, **checkpointing):
+        calls["scene"], calls["callback"], calls["checkpointing"] = scene, callback, checkpointing
         stats = Stats()
         for step in range(1, 11):
             stats.time_steps = step
@@ -171,13 +172,13 @@ def test_bad_toml_exits_2(tmp_path, capsys):
 
 
 def test_solver_failure_exits_1_with_its_message(tiny, tmp_path, monkeypatch, capsys):
-    def failing(scene, callback):
+    def failing(scene, callback, **checkpointing):
         raise StepFailure("series diverged", step=3, t=3e-4, amax=1e-3)
 
     monkeypatch.setattr(cli, "_simulate", failing)
     assert cli.main(["run", str(tiny), "--out", str(tmp_path / "o"), "--no-progress"]) == 1
     line = one_error_line(capsys.readouterr().err)
-    assert line == "jaxanm: error: solver failed: step 3 (t = 0.0003): series diverged; a_max = 0.001"
+    assert line == "jaxanm: error: solver failed: step 3 (t = 0.0003): series diverged; a_max = 0.001, |R|_inf = n/a"
     assert not (tmp_path / "o").exists()
 
 
@@ -246,3 +247,145 @@ def test_end_to_end_smallest_shipped_scene(tmp_path):
         assert all(np.all(np.isfinite(f[k])) for k in ("points", "u", "v", "T"))
     assert len(list((out / "vtu").glob("*.vtu"))) == S
     assert (out / "probes.csv").read_text().splitlines()[0].startswith("t")
+
+
+# --------------------------------------------------------------------------- checkpoint / resume
+
+RESUME_TOML = """
+# fsw_small at (R2 - R1) / 4 (113 points) for 5 steps, Newton: a few seconds per run
+name = "resume_tiny"
+effects = ["inertia", "viscous", "softening", "conduction", "tool_conduction", "dissipation", "robin",
+           "lagrangian"]
+[geometry]
+dr = 1.125e-3
+[mechanics]
+penalty = 4.08e5
+[time]
+dt = 1e-4
+t_end = 5e-4
+save = [2e-4, 4e-4]
+[solver]
+kind = "newton"
+tol = 1e-8
+[[probes]]
+name = "1"
+x = 1.875e-3
+y = 0.0
+[[sections]]
+name = "A-A"
+start = [-6e-3, 0.0]
+end = [6e-3, 0.0]
+samples = 21
+"""
+
+
+@pytest.fixture(scope="module")
+def resume_scene(tmp_path_factory):
+    """A tiny Lagrangian thermo-mechanical scene file and its uninterrupted results directory."""
+    root = tmp_path_factory.mktemp("resume")
+    path = root / "resume_tiny.toml"
+    path.write_text(RESUME_TOML)
+    ref = root / "ref"
+    assert cli.main(["run", str(path), "--out", str(ref), "--no-progress"]) == 0
+    return path, ref
+
+
+def _interrupt_after(monkeypatch, steps, how):
+    """Make the CLI's simulation stop after ``steps`` accepted steps (KeyboardInterrupt or SIGTERM)."""
+    real = cli._simulate
+
+    def simulate(scene, callback, **checkpointing):
+        def stop(t, stats):
+            if stats.time_steps == steps:
+                if how == "sigterm":
+                    os.kill(os.getpid(), signal.SIGTERM)  # the run turns it into an interruption
+                raise KeyboardInterrupt
+
+        return real(scene, stop, **checkpointing)
+
+    monkeypatch.setattr(cli, "_simulate", simulate)
+
+
+def _same_results(a: Path, b: Path):
+    with np.load(a / "fields.npz") as fa, np.load(b / "fields.npz") as fb:
+        assert sorted(fa.files) == sorted(fb.files)
+        for key in fa.files:
+            np.testing.assert_array_equal(fa[key], fb[key], err_msg=key)  # bit-identical
+    assert (a / "probes.csv").read_text() == (b / "probes.csv").read_text()
+
+
+@pytest.mark.parametrize("how", ["sigint", "sigterm"])
+def test_interrupted_run_resumes_to_the_same_fields(resume_scene, tmp_path, monkeypatch, capsys, how):
+    path, ref = resume_scene
+    out = tmp_path / "run"
+    _interrupt_after(monkeypatch, 3, how)
+    assert cli.main(["run", str(path), "--out", str(out), "--checkpoint-every", "2", "--no-progress"]) == 130
+    line = one_error_line(capsys.readouterr().err)
+    assert "interrupted" in line and f"resume with: jaxanm run --resume {out}" in line
+    assert (out / "checkpoint.pkl").is_file()
+    assert not [f for f in os.listdir(out) if f.startswith(".")]  # no half-written file left
+    with np.load(out / "fields.npz") as partial:  # the results so far were written
+        assert list(partial["t"]) == [0.0, 2e-4]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["t_end"] == pytest.approx(3e-4)
+    monkeypatch.undo()
+    # nothing but the directory is needed; options that agree with the stored scene are accepted
+    extra = [] if how == "sigint" else [str(path), "--out", str(out), "--solver", "newton"]
+    assert cli.main(["run", "--resume", str(out), *extra, "--no-progress"]) == 0
+    _same_results(ref, out)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stats"]["resumes"] == 0  # Newton keeps no K* across steps
+    assert summary["stats"]["time_steps"] == 5
+
+
+def _write_checkpoint(directory: Path, scene: Scene, every=3):
+    from jaxanm.checkpoint import write_atomic
+
+    write_atomic(directory / cli.CHECKPOINT_NAME,
+                 {"host_state": {"scene": scene.to_dict(), "settings": {"checkpoint_every": every}}})
+
+
+@pytest.mark.parametrize("extra, expected", [
+    (["--set", "material.K=2e16"], "change material.K"),
+    (["--t-end", "0.002"], "change time.t_end"),
+    (["--solver", "newton"], "change solver.kind"),
+    (["{other}"], "change name"),
+    (["--out", "{elsewhere}"], "conflicts with --resume"),
+])
+def test_resume_refuses_conflicting_options(extra, expected, tiny, tmp_path, fake_run, capsys):
+    stored = Scene.from_dict({"name": "tiny", "effects": ["viscous"], "time": {"dt": 1e-4, "t_end": 0.001}})
+    _write_checkpoint(tmp_path, stored)
+    other = tmp_path / "other.toml"
+    other.write_text(TINY_TOML.replace('"tiny"', '"other"'))
+    extra = [a.format(other=other, elsewhere=tmp_path / "x") for a in extra]
+    assert cli.main(["run", "--resume", str(tmp_path), *extra, "--no-progress"]) == 2
+    assert expected in one_error_line(capsys.readouterr().err)
+    assert "scene" not in fake_run
+
+
+def test_resume_takes_scene_and_settings_from_the_checkpoint(tmp_path, fake_run, no_files):
+    stored = Scene.from_dict({"name": "tiny", "effects": ["viscous"], "time": {"dt": 1e-4, "t_end": 0.001}})
+    _write_checkpoint(tmp_path, stored, every=7)
+    assert cli.main(["run", "--resume", str(tmp_path), "--no-progress"]) == 0
+    assert fake_run["scene"] == stored
+    assert fake_run["checkpointing"] == {"checkpoint": tmp_path / cli.CHECKPOINT_NAME, "checkpoint_every": 7,
+                                         "resume": True}
+    assert no_files["out_dir"] == tmp_path
+
+
+@pytest.mark.parametrize("content, expected", [
+    (None, "no checkpoint.pkl there"),
+    (b"not a pickle", "not a readable jaxanm checkpoint"),
+])
+def test_resume_without_a_usable_checkpoint_exits_2(content, expected, tmp_path, fake_run, capsys):
+    if content is not None:
+        (tmp_path / cli.CHECKPOINT_NAME).write_bytes(content)
+    assert cli.main(["run", "--resume", str(tmp_path)]) == 2
+    assert expected in one_error_line(capsys.readouterr().err)
+
+
+def test_checkpoint_every_goes_into_the_output_directory(tiny, tmp_path, fake_run, no_files):
+    assert cli.main(["run", str(tiny), "--out", str(tmp_path), "--checkpoint-every", "5", "--no-progress"]) == 0
+    assert fake_run["checkpointing"] == {"checkpoint": tmp_path / "checkpoint.pkl", "checkpoint_every": 5,
+                                         "resume": False}
+    assert cli.main(["run", str(tiny), "--checkpoint-every", "0"]) == 2

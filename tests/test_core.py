@@ -76,6 +76,24 @@ def test_validity_range_formula():
     assert jaxanm.validity_range(c, scale, 1e-6) == pytest.approx((1e-6 * 2 / 5e-4) ** 0.5)
     assert jaxanm.validity_range(np.array([[1.0], [0.0]]), np.ones(1), 1e-6) == np.inf
     assert jaxanm.validity_range(np.array([[1.0], [np.nan]]), np.ones(1), 1e-6) == 0.0
+    # criterion "state": the larger of eq. 26 and (tol |d_s| / |c_p|)^(1/p), |d_s| = 10
+    state = np.array([10.0, 0.0])
+    assert jaxanm.validity_range(c, scale, 1e-6, state=state) == pytest.approx((1e-6 * 10 / 5e-4) ** (1 / 3))
+    assert jaxanm.validity_range(c, scale, 1e-6, state=1e-3 * state) == pytest.approx((1e-6 * 2 / 5e-4) ** 0.5)
+
+
+def test_state_criterion_bounds_the_error_by_tol_times_the_state():
+    """criterion="state" accepts when the last term is below tol |x|: each step then errs by about
+    tol |x|, and 100 contractive implicit-Euler steps by at most 100 tol |x|; it never needs more
+    factorisations than eq. 26, which asks the same relative accuracy of the (smaller) increment."""
+    problem = heat_1d()
+    tol = 1e-8
+    ref = _run(problem, jaxanm.Newton(tol=1e-13)).xs[-1]
+    by_increment = _run(problem, jaxanm.ANM(order=5, tol=tol))
+    by_state = _run(problem, jaxanm.ANM(order=5, tol=tol, criterion="state"))
+    assert np.abs(by_state.xs[-1] - ref).max() < 100 * tol * np.linalg.norm(ref)
+    assert by_state.stats.factorizations <= by_increment.stats.factorizations
+    assert by_state.stats.series_orders < by_increment.stats.series_orders
 
 
 def test_impulsive_start_uses_in_step_continuation_and_converges():
@@ -202,6 +220,8 @@ def test_bad_solver_options_are_rejected():
         jaxanm.ANM(order=1)
     with pytest.raises(jaxanm.InputError, match="tol"):
         jaxanm.Newton(tol=0.0)
+    with pytest.raises(jaxanm.InputError, match="criterion must be 'increment'"):
+        jaxanm.ANM(criterion="relative")
     with pytest.raises(jaxanm.InputError, match="non-finite"):
         jaxanm.integrate(lambda x, *a: x, np.array([np.nan]), None, t0=0, t1=1, dt=0.1, solver=jaxanm.ANM())
 
@@ -211,3 +231,34 @@ def test_save_at_and_params_history():
     sol = _run((residual, x0, params), jaxanm.ANM(), t1=0.1, save_at=[0.03, 0.05], save_params=True)
     np.testing.assert_allclose(sol.ts, [0.0, 0.03, 0.05, 0.1])
     assert len(sol.params) == 4 and sol.xs.shape == (4, 8)
+
+
+def test_after_step_remap_changes_the_discretisation_without_changing_the_solution():
+    """A hook that changes the unknowns' basis (here: a per-unknown scaling y = s x, renewed after
+    every step, like rebuilt MLS stencils) and remaps the state onto it with ``Remap`` gives the
+    same fields as the plain run; changing the basis without remapping does not."""
+    residual0, x0, params0 = heat_1d()
+    rng = np.random.default_rng(3)
+
+    def residual(y, y_old, t, dt, p):
+        return residual0(y / p["s"], y_old / p["s_old"], t, dt, params0)
+
+    def rebasis(remap):
+        def after_step(t, y, p):
+            s_new = np.asarray(p["s"]) * rng.uniform(0.5, 2.0, y.shape)
+            p_new = {"s": s_new, "s_old": s_new}
+            return jaxanm.Remap(p_new, np.asarray(y) / np.asarray(p["s"]) * s_new) if remap else p_new
+        return after_step
+
+    s0 = np.ones_like(x0)
+    kw = dict(t0=0.0, t1=0.3, dt=1e-2, solver=jaxanm.Newton(tol=1e-12), save_params=True)
+    plain = jaxanm.integrate(residual0, x0, params0, **kw)
+    remapped = jaxanm.integrate(residual, x0, {"s": s0, "s_old": s0}, after_step=rebasis(True), **kw)
+    ignored = jaxanm.integrate(residual, x0, {"s": s0, "s_old": s0}, after_step=rebasis(False), **kw)
+    scale = np.abs(plain.xs[-1]).max()
+    fields = remapped.xs[-1] / remapped.params[-1]["s"]
+    assert np.abs(fields - plain.xs[-1]).max() < 1e-9 * scale
+    assert np.abs(ignored.xs[-1] / ignored.params[-1]["s"] - plain.xs[-1]).max() > 1e-3 * scale
+    with pytest.raises(jaxanm.InputError, match="Remap state of shape"):
+        jaxanm.integrate(residual0, x0, params0, after_step=lambda t, x, p: jaxanm.Remap(p, x[:-1]),
+                         **{**kw, "t1": 0.02})

@@ -63,6 +63,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
+import scipy.sparse.linalg
 
 from .. import mls
 from .._x64 import entry_point
@@ -112,21 +113,18 @@ def _gather(st: mls.Stencils, f, weights):
     return [jnp.sum(w * g, axis=1) for w in weights]
 
 
-def _old_value(flags: Effects, st, p, x_old, j, fold):
-    """Value of field ``j`` at the points at the previous time level.
+def _old_value(st, fold):
+    """Value at the points, at the previous time level, of a field with old nodal parameters ``fold``.
 
-    Fixed points: the old nodal parameters on the current stencils.  Lagrangian points: the
-    values the points carry (``p["old"]``) when ``x_old`` is the state the cloud was last moved
-    with; otherwise (a halved sub-step on the same cloud) the old nodal parameters.
+    Fixed points: the old nodal parameters on the (unchanged) stencils.  Lagrangian points: the
+    run refits the nodal parameters to the values the points carry each time it rebuilds the
+    stencils (:meth:`Model.fit_state`), so the old parameters on the current stencils are
+    those carried values.
     """
-    on_stencils = _gather(st, fold, [st.phi])[0]
-    if not flags.lagrangian:
-        return on_stencils
-    fresh = jnp.all(x_old == p["x_ref"])
-    return jnp.where(fresh, p["old"][:, j], on_stencils)
+    return _gather(st, fold, [st.phi])[0]
 
 
-def _momentum_rows(flags: Effects, st, p, x_old, dt, vel_nodal, vel_old_nodal, temp):
+def _momentum_rows(flags: Effects, st, p, dt, vel_nodal, vel_old_nodal, temp):
     """u and v rows, and ``mu epsbar^2`` at the points (for the dissipation)."""
     c, kind = p["c"], p["kind"]
     ops = [st.phi, st.dx, st.dy, st.dxx, st.dxy, st.dyy]
@@ -153,8 +151,8 @@ def _momentum_rows(flags: Effects, st, p, x_old, dt, vel_nodal, vel_old_nodal, t
     fy = (lam_mu + 1.0) * (uxy + vyy) + (vxx + vyy) + 2.0 * (exy * lx + eyy * ly)
     stiff = 1.0 + c["lam"] / c["mu_ref"]
     if flags.inertia:
-        ax = (u - _old_value(flags, st, p, x_old, 0, vel_old_nodal[0])) / dt
-        ay = (v - _old_value(flags, st, p, x_old, 1, vel_old_nodal[1])) / dt
+        ax = (u - _old_value(st, vel_old_nodal[0])) / dt
+        ay = (v - _old_value(st, vel_old_nodal[1])) / dt
         if flags.tracers:
             ax = ax + u * ux + v * uy
             ay = ay + u * vx + v * vy
@@ -170,11 +168,11 @@ def _momentum_rows(flags: Effects, st, p, x_old, dt, vel_nodal, vel_old_nodal, t
     return rows, (u, v), mu * e2
 
 
-def _heat_rows(flags: Effects, st, p, x_old, dt, jT, T_old_nodal, temp, vel, mu_e2):
+def _heat_rows(flags: Effects, st, p, dt, jT, T_old_nodal, temp, vel, mu_e2):
     """T rows: heat equations, tool-edge interface conditions, the ring's edge condition."""
     c, kind, partner, normal = p["c"], p["kind"], p["partner"], p["normal"]
     T, Tx, Ty, lapT = temp
-    dTdt = (T - _old_value(flags, st, p, x_old, jT, T_old_nodal)) / dt
+    dTdt = (T - _old_value(st, T_old_nodal)) / dt
     if flags.tracers:
         dTdt = dTdt + vel[0] * Tx + vel[1] * Ty
     plate_heat = c["rho"] * c["Cp"] * dTdt - c["k"] * lapT
@@ -213,9 +211,9 @@ def _residual_for(flags: Effects):
         rows, vel, mu_e2 = [], None, None
         temp = _gather(st, X[-1], [st.phi, st.dx, st.dy, st.dxx + st.dyy]) if flags.conduction else None
         if flags.viscous:
-            rows, vel, mu_e2 = _momentum_rows(flags, st, p, x_old, dt, X[:2], Xo[:2], temp)
+            rows, vel, mu_e2 = _momentum_rows(flags, st, p, dt, X[:2], Xo[:2], temp)
         if flags.conduction:
-            rows.append(_heat_rows(flags, st, p, x_old, dt, nf - 1, Xo[-1], temp, vel, mu_e2))
+            rows.append(_heat_rows(flags, st, p, dt, nf - 1, Xo[-1], temp, vel, mu_e2))
         return jnp.concatenate(rows)
 
     return residual
@@ -262,21 +260,13 @@ class Model:
                       mu_ref=mu_reference(s))
         return {k: np.float64(values[k]) for k in CONSTANTS}
 
-    def params(self, points: np.ndarray, stencils: mls.Stencils, old=None, x_ref=None) -> dict:
-        """The residual's parameter pytree for the cloud at ``points`` with ``stencils``.
-
-        Lagrangian scenes also carry ``old`` (N, len(fields)) values at the points from the
-        previous step and ``x_ref`` (the state they were computed from); defaults: the initial
-        condition and :meth:`initial_state`.
-        """
+    def params(self, points: np.ndarray, stencils: mls.Stencils) -> dict:
+        """The residual's parameter pytree for the cloud at ``points`` with ``stencils``."""
         points = np.asarray(points, dtype=np.float64)
         r = np.hypot(points[:, 0], points[:, 1])
         normal = np.where(r[:, None] > 0, points / np.where(r > 0, r, 1.0)[:, None], 0.0)
         p = {"st": stencils, "c": self.constants(), "xy": points, "kind": self.cloud.kind,
              "partner": self.cloud.partner, "normal": normal}
-        if self.effects.lagrangian:
-            p["old"] = self.initial_values(points) if old is None else np.asarray(old, dtype=np.float64)
-            p["x_ref"] = self.initial_state(points) if x_ref is None else np.asarray(x_ref, dtype=np.float64)
         return p
 
     def initial_values(self, points: np.ndarray) -> np.ndarray:
@@ -288,6 +278,22 @@ class Model:
                 "v": np.where(sticking, omega * points[:, 0], 0.0),
                 "T": np.full(len(kind), sc.thermal.T0)}
         return np.stack([cols[f] for f in self.fields], axis=1)
+
+    def fit_state(self, values: np.ndarray, stencils: mls.Stencils) -> np.ndarray:
+        """Unknowns whose MLS values at the stencils' points are ``values`` (N, len(fields)).
+
+        MLS is not interpolating: the value matrix ``Phi[i, index[i, k]] = phi[i, k]`` is not the
+        identity.  After a Lagrangian move the rebuilt stencils change ``Phi``; solving
+        ``Phi x_f = values_f`` (one sparse LU of ``Phi``, shared by the fields) gives the state
+        that carries the points' values onto the new stencils, so the next step's residual holds
+        only the physical change.  Flattened in the layout of :attr:`fields`.
+        """
+        index, phi = np.asarray(stencils.index), np.asarray(stencils.phi)
+        N = index.shape[0]
+        rows = np.repeat(np.arange(N), index.shape[1])
+        value_matrix = scipy.sparse.csc_matrix((phi.reshape(-1), (rows, index.reshape(-1))), shape=(N, N))
+        fitted = scipy.sparse.linalg.splu(value_matrix).solve(np.asarray(values, dtype=np.float64))
+        return fitted.T.reshape(-1).copy()
 
     def initial_state(self, points: np.ndarray) -> np.ndarray:
         """Initial unknowns: nodal parameters equal to :meth:`initial_values`, flattened."""

@@ -89,6 +89,17 @@ EFFECT_REQUIRES = {
 
 LAYOUTS = ("polar", "grid")
 SOLVER_KINDS = ("anm", "newton", "modified_newton")
+MAX_POINTS = 200_000
+"""Largest point cloud a scene may ask for (about ``pi (R2 / dr)^2`` points): checked on load,
+so that a typo in ``dr`` or ``R2`` fails at once instead of exhausting memory."""
+MAX_STEPS = 10_000_000
+"""Largest number of time steps ``t_end / dt`` a scene may ask for."""
+MAX_ORDER = 30
+"""Largest ANM series order a scene may ask for (the jet series compiles in a time that grows
+steeply with the order: docs/hard_cases.md)."""
+MAX_SAMPLES = 100_000
+"""Largest number of samples of a registration section."""
+_NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-.+")
 
 
 class SceneError(ValueError):
@@ -113,7 +124,10 @@ def _as_float(field: str, value) -> float:
             _fail(field, value, "expected a real number, e.g. 2.69e16")
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         _fail(field, value, "expected a real number")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:
+        _fail(field, value, "expected a finite real number (this integer is too large for a float)")
     _check(field, value, math.isfinite(value), "expected a finite real number")
     return value
 
@@ -203,10 +217,15 @@ class Geometry(_Section):
         _check("geometry.dr", self.dr, self.dr <= (self.R2 - self.R1) / 2,
                f"must be <= (R2 - R1) / 2 = {(self.R2 - self.R1) / 2:.6g} (at least one ring of "
                f"points between tool and outer edge)")
+        smallest = self.R2 * math.sqrt(math.pi / MAX_POINTS)  # about MAX_POINTS points (no overflow)
+        _check("geometry.dr", self.dr, self.dr >= smallest,
+               f"with geometry.R2 = {self.R2} it asks for more than {MAX_POINTS} points (about "
+               f"pi (R2/dr)^2): use dr >= {smallest:.3g}")
         _check("geometry.h_factor", self.h_factor, 1.5 <= self.h_factor <= 6.0,
                "must be in [1.5, 6] (the paper uses 3)")
         _check("geometry.layout", self.layout, self.layout in LAYOUTS, f"must be one of {LAYOUTS}")
-        _check("geometry.q", self.q, self.q >= 1, "must be an integer >= 1 (the paper uses 1)")
+        _check("geometry.c", self.c, self.c <= 10.0, "must be in (0, 10] (weight exp(-(r/c)^(2q)), the paper uses 0.2)")
+        _check("geometry.q", self.q, 1 <= self.q <= 10, "must be an integer in [1, 10] (the paper uses 1)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -289,6 +308,9 @@ class Time(_Section):
     def _validate(self):
         self._positive("dt", "t_end")
         _check("time.dt", self.dt, self.dt <= self.t_end, f"must be <= time.t_end = {self.t_end}")
+        _check("time.dt", self.dt, self.dt * MAX_STEPS >= self.t_end,
+               f"time.t_end / time.dt asks for more than {MAX_STEPS} steps: use dt >= "
+               f"{self.t_end / MAX_STEPS:.3g} or a shorter t_end")
         for i, s in enumerate(self.save):
             _check(f"time.save[{i}]", s, s >= 0, "save times must be >= 0")
 
@@ -300,24 +322,34 @@ class Time(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class SolverSpec(_Section):
-    """Nonlinear step solver: ``kind`` in ``anm | newton | modified_newton``, ANM ``order``, ``tol``."""
+    """Nonlinear step solver: ``kind`` in ``anm | newton | modified_newton``, ``tol``; ANM ``order``,
+    ``criterion`` (``increment``: the paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`) and
+    ``max_substeps``."""
 
     _name = "solver"
     kind: str = "anm"
     order: int = 7
     tol: float = 1e-6
+    criterion: str = "increment"
+    max_substeps: int = 50
 
     def _validate(self):
         _check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
-        _check("solver.order", self.order, self.order >= 2, "must be an integer >= 2")
+        _check("solver.order", self.order, 2 <= self.order <= MAX_ORDER,
+               f"must be an integer in [2, {MAX_ORDER}] (eq. 26 compares c_1 with c_p: order 1 has no "
+               "validity range; use solver.kind = 'modified_newton' for a linearised step)")
         _check("solver.tol", self.tol, 0 < self.tol < 1, "must be in (0, 1)")
+        _check("solver.criterion", self.criterion, self.criterion in ("increment", "state"),
+               "must be 'increment' (eq. 26) or 'state'")
+        _check("solver.max_substeps", self.max_substeps, self.max_substeps >= 0, "must be an integer >= 0")
 
     def make(self):
         """The :mod:`jaxanm` solver options object (``jaxanm.ANM``, ``Newton`` or ``ModifiedNewton``)."""
         import jaxanm
 
         if self.kind == "anm":
-            return jaxanm.ANM(order=self.order, tol=self.tol)
+            return jaxanm.ANM(order=self.order, tol=self.tol, criterion=self.criterion,
+                              max_substeps=self.max_substeps)
         if self.kind == "newton":
             return jaxanm.Newton(tol=self.tol)
         return jaxanm.ModifiedNewton(tol=self.tol)
@@ -352,7 +384,8 @@ class Section(_Section):
         for key in ("start", "end"):
             _check(f"sections.{key}", getattr(self, key), len(getattr(self, key)) == 2,
                    "must be a point [x, y]")
-        _check("sections.samples", self.samples, self.samples >= 2, "must be an integer >= 2")
+        _check("sections.samples", self.samples, 2 <= self.samples <= MAX_SAMPLES,
+               f"must be an integer in [2, {MAX_SAMPLES}]")
 
 
 _SECTIONS = {"geometry": Geometry, "material": Material, "tool": Tool, "thermal": Thermal,
@@ -383,12 +416,17 @@ class Scene:
 
     def __post_init__(self):
         object.__setattr__(self, "name", _as_str("name", self.name))
+        _check("name", self.name, 0 < len(self.name) <= 100 and set(self.name) <= _NAME_CHARS
+               and not self.name.startswith("."),
+               "must be 1-100 letters, digits or _-.+ not starting with '.' (it names the output directory)")
         effects = _as_strs("effects", self.effects)
         object.__setattr__(self, "effects", effects)
         for key, cls in _SECTIONS.items():
             _check(key, getattr(self, key), isinstance(getattr(self, key), cls),
                    f"expected a jaxanm.fsw.scene.{cls.__name__}")
         for key, cls in (("probes", Probe), ("sections", Section)):
+            _check(key, getattr(self, key), isinstance(getattr(self, key), (list, tuple)),
+                   f"expected a list of jaxanm.fsw.scene.{cls.__name__}")
             items = tuple(getattr(self, key))
             for i, item in enumerate(items):
                 _check(f"{key}[{i}]", item, isinstance(item, cls), f"expected a {cls.__name__}")
@@ -421,14 +459,14 @@ class Scene:
         for i, p in enumerate(self.probes):
             r = math.hypot(p.x, p.y)
             _check(f"probes[{i}] ({p.name})", (p.x, p.y), g.R1 < r < g.R2,
-                   f"must lie in the plate, R1 = {g.R1} < r < R2 = {g.R2} (r = {r:.6g})")
+                   f"must lie in the plate, geometry.R1 = {g.R1} < r < geometry.R2 = {g.R2} (r = {r:.6g})")
         names = [s.name for s in self.sections]
         _check("sections", names, len(set(names)) == len(names), "section names must be unique")
         for i, s in enumerate(self.sections):
             for key in ("start", "end"):
                 pt = getattr(s, key)
                 _check(f"sections[{i}].{key}", pt, math.hypot(*pt) <= g.R2 * (1 + 1e-12),
-                       f"must lie in the disc r <= R2 = {g.R2}")
+                       f"must lie in the disc r <= geometry.R2 = {g.R2}")
 
     def has(self, effect: str) -> bool:
         """Whether the scene lists ``effect``."""
@@ -441,6 +479,7 @@ class Scene:
         values are parsed to the field's type (``"2e16"``, ``"conduction,robin"``).  The result
         is validated as a whole; an unknown key or bad value raises :class:`SceneError`.
         """
+        _check("overrides", overrides, isinstance(overrides, dict), "expected a dict {'section.field': value}")
         top: dict = {}
         per_section: dict = {}
         allowed = override_keys()
@@ -467,6 +506,7 @@ class Scene:
     @classmethod
     def from_dict(cls, data: dict, source: str = "scene") -> "Scene":
         """Scene from a dictionary in the TOML layout; unknown tables or keys raise :class:`SceneError`."""
+        _check(source, data, isinstance(data, dict), "expected a table (dict) of scene sections")
         known = {"name", "effects", "probes", "sections", *_SECTIONS}
         for key in data:
             _check(f"{source}: top-level key", key, key in known, f"known keys are {sorted(known)}")

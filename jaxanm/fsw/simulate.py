@@ -9,7 +9,8 @@ after every accepted step that
   the save times, the fields and the registration sections;
 - with ``lagrangian``: moves the points (tool and tool-edge points rotate rigidly by
   ``omega dt``, exactly; plate points ``x <- x + dt V``), rebuilds the stencils with the same
-  width (nothing recompiles) and hands the carried values to the next step;
+  width (nothing recompiles) and refits the unknowns so that the new stencils reproduce the
+  values the points carry (:class:`jaxanm.Remap`);
 - with ``tracers``: advects passive tracer particles (initially at the points) through the
   fixed cloud, for the mixing picture.
 """
@@ -156,7 +157,8 @@ class _Recorder:
             velocity = np.stack([full["u"], full["v"]], axis=1)
             self.points = _move(self.points, model.cloud.kind, velocity, scene.tool.omega, dt)
             st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width)
-            params = model.params(self.points, st, old=values, x_ref=x)
+            self._record(self.t, full, save)
+            return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st))
         self._record(self.t, full, save)
         return params
 
@@ -185,7 +187,51 @@ def _save_steps(scene: Scene, n_steps: int) -> set:
     return {min(max(round(t / dt), 0), n_steps) for t in scene.time.save_times if t > 0}
 
 
-def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | None = None) -> FSWResult:
+_HOST_INPUTS = ("scene", "model")
+"""Recorder attributes rebuilt from the scene on resume (everything else is checkpointed)."""
+
+
+def _host_state(scene: Scene, recorder: _Recorder, settings: dict):
+    """The ``(get, set)`` pair :func:`jaxanm.integrate` stores in / restores from its checkpoints.
+
+    The snapshot is ``{"scene": scene.to_dict(), "settings": settings, "recorder": {...}}`` where
+    the recorder part holds every attribute of the recorder except the scene and model (moving
+    points, step and time, probe histories, saved fields, sections, tracers); pickled as is.
+    ``set`` refuses a checkpoint written for another scene (:class:`jaxanm.InputError` naming
+    the differing fields).
+    """
+    def get():
+        return {"scene": scene.to_dict(), "settings": dict(settings),
+                "recorder": {k: v for k, v in vars(recorder).items() if k not in _HOST_INPUTS}}
+
+    def set_(state):
+        stored = state.get("scene") if isinstance(state, dict) else None
+        if stored != scene.to_dict():
+            raise jaxanm.InputError(f"the checkpoint was written for another scene ({scene_differences(stored, scene)} "
+                                    "differ); resume with the scene it stores, or start afresh")
+        for key, value in state["recorder"].items():
+            setattr(recorder, key, value)
+
+    return get, set_
+
+
+def scene_differences(stored, scene: Scene) -> str:
+    """Comma-separated dotted keys whose values differ between a stored scene dict and ``scene``."""
+    if not isinstance(stored, dict):
+        return "no scene stored"
+    mine = scene.to_dict()
+    keys = []
+    for key in sorted(set(stored) | set(mine)):
+        a, b = stored.get(key), mine.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            keys += [f"{key}.{k}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+        elif a != b:
+            keys.append(key)
+    return ", ".join(keys) or "none"
+
+
+def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | None = None, *,
+        checkpoint=None, checkpoint_every: int = 0, resume: bool = False) -> FSWResult:
     """Simulate ``scene`` from t = 0 to ``scene.time.t_end``; return an :class:`FSWResult`.
 
     Parameters
@@ -199,11 +245,26 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     callback : callable ``(t, stats)``, optional
         Called after every accepted step with the time reached and the run's ``jaxanm.Stats``
         so far (e.g. a progress display).
+    checkpoint : path, optional
+        Checkpoint file (written atomically every ``checkpoint_every`` steps, at the end, and
+        when the run is interrupted or fails).  Besides integrate's state it holds the scene
+        and the host-side recorder (moving points, probe histories, saved fields, sections,
+        tracers), so a resumed run returns the same result as an uninterrupted one.
+    checkpoint_every : int
+        Checkpoint period in time steps (0: only at the end, on interruption and on failure).
+    resume : bool
+        Continue from ``checkpoint`` if it exists (bit-identical to an uninterrupted run).
 
     Raises
     ------
     jaxanm.StepFailure, jaxanm.NonFiniteError
-        A step failed even after dt halvings (the message gives step, time and norms).
+        A step failed even after dt halvings (the message gives step, time, a_max and |R|).
+    jaxanm.InputError
+        Bad checkpoint options, or a checkpoint written for another scene or solver.
+    KeyboardInterrupt
+        The run was interrupted (SIGINT, or SIGTERM as :class:`jaxanm.checkpoint.Interrupted`);
+        the exception carries ``partial``: the :class:`FSWResult` of the steps done so far
+        (also on :class:`jaxanm.StepFailure`).
     """
     solver = scene.solver.make() if solver is None else solver
     cloud = build_cloud(scene.geometry)
@@ -214,8 +275,26 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     tm = scene.time
     n_steps = max(1, math.ceil(tm.t_end / tm.dt - 1e-9))
     recorder = _Recorder(scene, model, stencils, x0, _save_steps(scene, n_steps))
-    sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver,
-                           scale=model.scale(), jacobian="sparse", sparsity=model.sparsity,
-                           save_at=[tm.t_end], after_step=recorder.after_step, progress=progress,
-                           callback=None if callback is None else (lambda t, x, stats: callback(t, stats)))
+    latest = {"stats": jaxanm.Stats()}
+
+    def step_done(t, x, stats):
+        latest["stats"] = stats
+        if callback is not None:
+            callback(t, stats)
+
+    host = None
+    if checkpoint is not None:
+        host = _host_state(scene, recorder, {"checkpoint_every": int(checkpoint_every)})
+    try:
+        sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver,
+                               scale=model.scale(), jacobian="sparse", sparsity=model.sparsity,
+                               save_at=[tm.t_end], after_step=recorder.after_step, progress=progress,
+                               callback=step_done, checkpoint=checkpoint, checkpoint_every=checkpoint_every,
+                               resume=resume, host_state=host)
+    except (KeyboardInterrupt, jaxanm.StepFailure) as exc:
+        try:  # the steps recorded so far (consistent: integrate defers signals while recording)
+            exc.partial = recorder.result(solver, latest["stats"])
+        except Exception:  # noqa: BLE001 - a broken recorder must not hide the original error
+            pass
+        raise
     return recorder.result(solver, sol.stats)
