@@ -13,6 +13,7 @@ from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
 from .integrate import Remap, Solution, integrate
 from .jacobian import SparseJacobian, color_columns, detect_sparsity
 from .linalg import Factorization, factorize
+from .sensitivity import Sensitivities, sensitivities, value_and_grad
 from .series import taylor_coefficients
 from .solvers import ANM, ModifiedNewton, Newton, evaluate_series, validity_range
 from .stats import Stats
@@ -25,6 +26,7 @@ __all__ = [
     "Newton",
     "NonFiniteError",
     "Remap",
+    "Sensitivities",
     "SingularMatrixError",
     "Solution",
     "SparseJacobian",
@@ -36,8 +38,10 @@ __all__ = [
     "factorize",
     "float64",
     "integrate",
+    "sensitivities",
     "taylor_coefficients",
     "validity_range",
+    "value_and_grad",
 ]
 
 __version__ = "0.1.0"
