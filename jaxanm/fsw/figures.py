@@ -15,7 +15,9 @@ Conventions:
   (:class:`matplotlib.tri.LinearTriInterpolator`), across the whole disc.
 - A requested time (0.01 s, 0.3 s, ...) is drawn at the nearest saved time, which the panel
   title states; it is skipped if the run ended more than half a save interval before it.
-- Material 0 is the tool (grey), 1 the plate y > 0 (blue), 2 the plate y < 0 (red).
+- Material 0 is the tool (grey), 1 the plate y > 0 (blue), 2 the plate y < 0 (red).  The
+  mixing state is drawn from the moving points of a Lagrangian result, and from the passive
+  tracer particles of a fixed-point (``tracers``) result (:func:`mixing_points`).
 - Lengths are plotted in mm, velocities in m/s, temperatures in K.
 """
 
@@ -180,10 +182,23 @@ def fig05_velocity_sections(result) -> Figure:
     return fig
 
 
+def mixing_points(result, s: int) -> tuple[np.ndarray, np.ndarray]:
+    """Material positions (m) and colours at saved index ``s``: what carries the mixing state.
+
+    Lagrangian results carry it on their moving points; fixed-point (``tracers``) results on
+    their passive tracer particles (``result.tracers``), since their points never move.
+    """
+    tracers = getattr(result, "tracers", None)
+    if tracers is not None:
+        return (np.asarray(tracers["points"], dtype=np.float64)[s],
+                np.asarray(tracers["material"]))
+    return np.asarray(result.points, dtype=np.float64)[s], np.asarray(result.material)
+
+
 def _mixing_axes(ax, result, s: int) -> None:
-    """Scatter the points at saved index ``s`` coloured by material (the mixing state)."""
-    pts = np.asarray(result.points, dtype=np.float64)[s] * MM
-    material = np.asarray(result.material)
+    """Scatter the material (points, or tracers) at saved index ``s`` coloured by material."""
+    pts, material = mixing_points(result, s)
+    pts = pts * MM
     for mat, colour, label in MATERIALS:
         sel = material == mat
         if np.any(sel):

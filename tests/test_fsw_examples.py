@@ -1,0 +1,145 @@
+"""The FSW examples run as a user runs them (small settings), each pinning physically meaningful numbers.
+
+Every bound below comes from physics or from the scene's layout, not from a previous run:
+
+- unknowns: (u, v) per point, plus T with ``conduction``;
+- energy: the heat stored is at most ``beta P t``, P the closed-form power of the isothermal
+  power-law Couette flow (softening only lowers the viscosity, hence the power);
+- the paper's own statement (Fig. 3): point (1) near the tool heats more than point (3);
+- inertia: the flow changes by less than the weight of ``rho dV/dt`` in one implicit step;
+- softening: the heat drops, by at most the viscosity drop ``1 - (Tmax/T0)^A`` at the peak;
+- Robin cooling: the relative heat lost is at most ``t / t_cool``, ``t_cool = rho Cp R2 / (2 h)``;
+- tool conduction: the tool warms (it is held at T0 otherwise), the plate's peak drops.
+
+Both runs use Newton (the ANM's order-7 jet of each new effect combination takes 20-30 s of CPU
+to compile; the discrete solutions are the same).  The examples' defaults (ANM, finer clouds)
+run in the notebooks 03 and 04.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import pathlib
+
+import numpy as np
+
+EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
+
+
+def load_example(name: str):
+    """Import ``examples/<name>.py`` as a module."""
+    spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_couette_power_closed_form_newtonian_limit():
+    """n = 1, A = 0: the torque of Newtonian circular Couette flow, 4 pi mu omega R1^2 R2^2 / (R2^2 - R1^2)."""
+    ex = load_example("fsw_scene")
+    scene = ex.small_scene(t_end=0.01).with_overrides({"material.n": 1.0, "material.A": 0.0})
+    mu = scene.material.K / 3.0
+    R1, R2, om = scene.geometry.R1, scene.geometry.R2, scene.tool.omega
+    torque = 4 * math.pi * mu * om * R1 ** 2 * R2 ** 2 / (R2 ** 2 - R1 ** 2)
+    assert math.isclose(ex.couette_power(scene), torque * om, rel_tol=1e-12)
+
+
+def test_heat_content_quadrature_of_a_uniform_rise():
+    """A uniform 1 K rise stores rho Cp times the area of each part (up to the polygonal rings)."""
+    import types
+
+    from jaxanm.fsw.geometry import build_cloud
+
+    ex = load_example("fsw_scene")
+    scene = ex.small_scene(dr=7.5e-4, t_end=0.01)
+    cloud = build_cloud(scene.geometry)
+    g, m, tl = scene.geometry, scene.material, scene.tool
+    fake = types.SimpleNamespace(scene=scene, points=cloud.points[None], material=cloud.material,
+                                 T=np.full((1, cloud.size), scene.thermal.T0 + 1.0))
+    exact = m.rho * m.Cp * math.pi * (g.R2 ** 2 - g.R1 ** 2) + tl.rho * tl.Cp * math.pi * g.R1 ** 2
+    # the inscribed polygons of the outer ring (100 sides) and of the tool edge miss ~(pi/sides)^2
+    assert 0.99 * exact < ex.heat_content(fake) <= exact
+
+
+def test_fsw_scene_example(tmp_path, capsys):
+    ex = load_example("fsw_scene")
+    scene = ex.small_scene(dr=1.125e-3, dt=1e-3, t_end=0.005, solver="newton")
+    result, history, wall = ex.simulate(scene)
+    numbers = ex.summary(result, history, wall)
+    ex.print_summary(numbers)
+    assert "factorizations" in capsys.readouterr().out
+    n_points = result.material.size
+    assert numbers["unknowns"] == 3 * n_points  # u, v, T at every point
+    assert history["t"].size == 5 and math.isclose(history["t"][-1], 0.005)
+
+    # energy: dissipation is the only heat source, so 0 < E <= beta P(T0) t
+    balance = ex.energy_balance(result)
+    assert 0 < balance["E"] <= balance["upper"], balance
+
+    # paper, Fig. 3: the temperature at point (1) next to the tool exceeds that at point (3)
+    T0 = scene.thermal.T0
+    T1, T3 = (result.probes[name]["T"][-1] for name in ("1", "3"))
+    assert T1 > T3 and T1 > T0 + 0.1
+
+    # the mixing state is carried by the tracers (the points of a fixed-point run never move);
+    # tracers started in the tool have turned rigidly by omega t
+    from jaxanm.fsw import figures
+
+    pts, material = figures.mixing_points(result, -1)
+    start = result.tracers["points"][0]
+    assert np.array_equal(pts, result.tracers["points"][-1])
+    tool = material == 0
+    r0 = np.hypot(*start[tool].T)
+    moved = tool.copy()
+    moved[tool] = r0 > 0.5 * scene.geometry.R1
+    angle = np.arctan2(pts[moved, 1], pts[moved, 0]) - np.arctan2(start[moved, 1], start[moved, 0])
+    angle = np.mod(angle + np.pi, 2 * np.pi) - np.pi
+    assert np.allclose(angle, scene.tool.omega * 0.005, rtol=0, atol=1e-9)
+    assert np.allclose(np.hypot(*pts[tool].T), r0, rtol=1e-12)
+
+    # the figures a user gets
+    paths = ex.save_figures(result, history, tmp_path)
+    assert {p.name for p in paths} >= {"fig02_velocity_history.png", "fig03_temperature_history.png",
+                                       "fig05_velocity_sections.png", "mixing_end.png", "temperature_maps.png"}
+    assert all(p.stat().st_size > 10_000 for p in paths)
+
+
+def test_effects_example(capsys):
+    fx = load_example("effects")
+    rows = fx.ladder(dr=1.125e-3, dt=1e-3, t_end=0.005, solver="newton", rungs=fx.LADDER[:6])
+    fx.print_table(rows)
+    assert "unknowns" in capsys.readouterr().out
+    by = {r["label"]: r for r in rows}
+    sc = rows[-1]["result"].scene
+    T0, U = sc.thermal.T0, sc.tool.omega * sc.geometry.R1
+    d = fx.dimensionless(sc)
+
+    # unknowns: an isothermal scene carries exactly 2N (u, v), a thermal one 3N
+    for r in rows:
+        assert r["unknowns"] == (3 if "conduction" in r["effects"] else 2) * r["points"], r["label"]
+    assert by["viscous"]["T_plate"] == by["viscous"]["T_tool"] == T0
+
+    # inertia: Re ~ 3e-8; even rho dV/dt of one step weighs ~2e-4 of the viscous stress
+    assert d["Re"] < 1e-6 and d["unsteady"] < 1e-3
+    a, b = by["viscous"]["result"], by["+ inertia"]["result"]
+    dV = max(np.abs(a.u[-1] - b.u[-1]).max(), np.abs(a.v[-1] - b.v[-1]).max())
+    assert dV < d["unsteady"] * U
+
+    # dissipation: 0 < stored heat <= beta P t
+    heat = by["+ conduction, dissipation"]["heat"]
+    assert 0 < heat <= sc.material.beta * fx.couette_power(sc) * sc.time.t_end
+
+    # softening (A < 0): less viscous when hot, so less heat, by at most 1 - (Tmax/T0)^A
+    hot = by["+ conduction, dissipation"]["T_plate"]
+    drop = 1 - by["+ softening"]["heat"] / heat
+    assert 0 < drop <= 1 - (hot / T0) ** sc.material.A
+
+    # robin: relative heat lost at most t / t_cool (t_cool = rho Cp R2 / (2h) ~ 7.7 s)
+    lost = abs(by["+ robin"]["heat"] - by["+ softening"]["heat"]) / by["+ softening"]["heat"]
+    assert lost <= sc.time.t_end / d["cooling time"]
+
+    # tool conduction: the tool (held at T0 otherwise) warms and takes heat from the plate's peak;
+    # T is continuous at the tool edge and the source is in the plate, so the tool stays cooler
+    tc, no_tc = by["+ tool_conduction"], by["+ robin"]
+    assert no_tc["T_tool"] == T0 < tc["T_tool"] <= tc["T_plate"] < no_tc["T_plate"]
