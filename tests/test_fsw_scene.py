@@ -32,7 +32,8 @@ def test_shipped_scenes_load_and_paper_values():
         assert load_scene(name).name == name
     s = load_scene("fsw_paper")
     g, m, tl, th = s.geometry, s.material, s.tool, s.thermal
-    assert (g.R1, g.R2, g.dr, g.h_factor, g.c, g.q) == (1.5e-3, 6e-3, 3.75e-4, 3.0, 0.2, 1)
+    # c = 0.3, not the paper's 0.2: the documented departure in fsw_paper.toml (stability)
+    assert (g.R1, g.R2, g.dr, g.h_factor, g.c, g.q) == (1.5e-3, 6e-3, 3.75e-4, 3.0, 0.3, 1)
     assert (m.K, m.A, m.n, m.rho, m.Cp, m.k, m.beta) == (2.69e16, -3.3155, 0.1324, 2780, 920, 140, 0.9)
     assert (tl.rho, tl.Cp, tl.k, tl.omega) == (7800, 450, 36, 20)
     assert (th.h, th.Ta, th.T0) == (1000, 300, 300)
