@@ -99,6 +99,16 @@ CONFIGS = {
 # ----------------------------------------------------------------------------- problems
 
 
+def median_time(fn, repeats: int) -> float:
+    """Median wall time (s) of ``fn()`` over ``repeats`` calls."""
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts))
+
+
 def family(name: str) -> str:
     """Problem family: ``"rd@dt=5e-4"`` (the same problem at another dt) belongs to ``"rd"``."""
     return name.split("@")[0]
@@ -120,25 +130,19 @@ def build_problem(name: str, cfg: dict) -> dict:
         return {"residual": residual, "x0": x0, "params": params, "t0": 0.0, "t1": cfg["t1"],
                 "dt": cfg["dt"], "scale": None, "sparsity": None, "jacobian": "sparse",
                 "values": lambda x: x, "value_scale": None}
-    from jaxanm.fsw.geometry import build_cloud, build_stencils
-    from jaxanm.fsw.model import make_model
+    from jaxanm.fsw.model import discretise
     from jaxanm.fsw.scene import load_scene
-    import scipy.sparse
+    from jaxanm.mls import value_matrix
 
     scene = load_scene("fsw_tracers").with_overrides({"geometry.dr": cfg["dr"]})
-    cloud = build_cloud(scene.geometry)
-    st = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
-    model = make_model(scene, cloud)
-    params = model.params(cloud.points, st)
+    cloud, st, model, params, x_rest = discretise(scene)
     N = cloud.size
-    index, phi = np.asarray(st.index), np.asarray(st.phi)
-    Phi = scipy.sparse.csr_matrix((phi.ravel(), index.ravel(), np.arange(0, phi.size + 1, phi.shape[1])),
-                                  shape=(N, N))
+    Phi = value_matrix(st).tocsr()
     nf = len(model.fields)
     scale = model.scale()
     dt = cfg["dt"]
     t0 = cfg["warm_steps"] * dt
-    return {"residual": model.residual, "x0": None, "x_rest": model.initial_state(cloud.points),
+    return {"residual": model.residual, "x0": None, "x_rest": x_rest,
             "params": params, "t0": t0, "t1": t0 + cfg["span_steps"] * dt, "dt": dt, "scale": scale,
             "sparsity": model.sparsity, "jacobian": "sparse",
             "values": lambda x: np.concatenate([Phi @ f for f in np.asarray(x).reshape(nf, N)]),

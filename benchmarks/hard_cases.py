@@ -40,7 +40,7 @@ import numpy as np
 
 import jaxanm
 from jaxanm.fsw.geometry import PLATE, build_cloud, build_stencils
-from jaxanm.fsw.model import make_model, mu_reference
+from jaxanm.fsw.model import discretise, make_model, mu_reference
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run as fsw_run
 
@@ -128,11 +128,7 @@ def _fsw_integrate(overrides, solver, *, steps=None):
     from the recorded sub-step boundaries, so the check uses the last sub-step's x_old and dt.
     """
     scene = load_scene("fsw_small").with_overrides({**TINY, **overrides})
-    cloud = build_cloud(scene.geometry)
-    stencils = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
-    model = make_model(scene, cloud)
-    params = model.params(cloud.points, stencils)
-    x0 = model.initial_state(cloud.points)
+    cloud, stencils, model, params, x0 = discretise(scene)
     tm = scene.time
     t1 = tm.t_end if steps is None else steps * tm.dt
     sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=t1, dt=tm.dt, solver=solver,

@@ -33,15 +33,6 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import accuracy_cost as ac  # noqa: E402
 
 
-def _median_time(fn, repeats=20):
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
-
-
 def series_dissection(prob, x0, orders, repeats=20) -> list:
     """Per order p: compile time, and the per-call cost of the jet series with host / device args."""
     import jax
@@ -63,13 +54,13 @@ def series_dissection(prob, x0, orders, repeats=20) -> list:
             t = time.perf_counter()
             np.asarray(f(x0, terms, x0, t_, dt_, params))
             compile_s = time.perf_counter() - t
-            host = _median_time(lambda: np.asarray(f(x0, terms, x0, t_, dt_, params)), repeats)
+            host = ac.median_time(lambda: np.asarray(f(x0, terms, x0, t_, dt_, params)), repeats)
             xd, td = jax.device_put(x0), jax.device_put(terms)
-            dev = _median_time(lambda: np.asarray(f(xd, td, xd, t_, dt_, params_dev)), repeats)
-            exe = _median_time(lambda: f(xd, td, xd, t_, dt_, params_dev).block_until_ready(), repeats)
+            dev = ac.median_time(lambda: np.asarray(f(xd, td, xd, t_, dt_, params_dev)), repeats)
+            exe = ac.median_time(lambda: f(xd, td, xd, t_, dt_, params_dev).block_until_ready(), repeats)
             res = jax.jit(prob["residual"])
             np.asarray(res(x0, x0, t_, dt_, params))
-            res_host = _median_time(lambda: np.asarray(res(x0, x0, t_, dt_, params)), repeats)
+            res_host = ac.median_time(lambda: np.asarray(res(x0, x0, t_, dt_, params)), repeats)
             rows.append({"order": p, "terms": p - 1, "compile_s": compile_s, "call_host_args_ms": 1e3 * host,
                          "call_device_args_ms": 1e3 * dev, "device_execution_ms": 1e3 * exe,
                          "residual_call_host_args_ms": 1e3 * res_host,

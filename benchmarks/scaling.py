@@ -36,14 +36,8 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DR = 3.75e-4
 
-
-def _median(fn, repeats):
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from accuracy_cost import median_time  # noqa: E402
 
 
 def measure(dr: float, repeats: int, order: int = 7) -> dict:
@@ -52,18 +46,13 @@ def measure(dr: float, repeats: int, order: int = 7) -> dict:
     import jax.numpy as jnp
 
     import jaxanm
-    from jaxanm.fsw.geometry import build_cloud, build_stencils
-    from jaxanm.fsw.model import make_model
+    from jaxanm.fsw.model import discretise
     from jaxanm.fsw.scene import load_scene
     from jaxanm.solvers import _series_function
 
     t = time.perf_counter()
     scene = load_scene("fsw_tracers").with_overrides({"geometry.dr": dr})
-    cloud = build_cloud(scene.geometry)
-    st = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
-    model = make_model(scene, cloud)
-    params = model.params(cloud.points, st)
-    x0 = model.initial_state(cloud.points)
+    cloud, st, model, params, x0 = discretise(scene)
     build_s = time.perf_counter() - t
     rss_build = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     n = x0.size
@@ -77,13 +66,13 @@ def measure(dr: float, repeats: int, order: int = 7) -> dict:
         t = time.perf_counter()
         np.asarray(res(x, x0, t_, dt_, params))
         out["residual_compile_s"] = time.perf_counter() - t
-        out["residual_s"] = _median(lambda: np.asarray(res(x, x0, t_, dt_, params)), repeats)
+        out["residual_s"] = median_time(lambda: np.asarray(res(x, x0, t_, dt_, params)), repeats)
         ser = _series_function(model.residual)
         terms = 1e-3 * model.scale() * rng.standard_normal((order - 1, n))
         t = time.perf_counter()
         np.asarray(ser(x, terms, x0, t_, dt_, params))
         out["series_compile_s"] = time.perf_counter() - t
-        out["series_call_s"] = _median(lambda: np.asarray(ser(x, terms, x0, t_, dt_, params)), repeats)
+        out["series_call_s"] = median_time(lambda: np.asarray(ser(x, terms, x0, t_, dt_, params)), repeats)
         pattern = model.sparsity(params)
         t = time.perf_counter()
         sj = jaxanm.SparseJacobian(model.residual, pattern)
@@ -92,17 +81,17 @@ def measure(dr: float, repeats: int, order: int = 7) -> dict:
         t = time.perf_counter()
         J = sj(x, x0, t_, dt_, params)
         out["jacobian_compile_s"] = time.perf_counter() - t
-        out["jacobian_s"] = _median(lambda: sj(x, x0, t_, dt_, params), max(1, repeats // 2))
+        out["jacobian_s"] = median_time(lambda: sj(x, x0, t_, dt_, params), max(1, repeats // 2))
     out["nnz_J"] = int(J.nnz)
     stats = jaxanm.Stats()
     t = time.perf_counter()
     fact = jaxanm.factorize(J, stats)
     out["factorize_s"] = min(time.perf_counter() - t,
-                             _median(lambda: jaxanm.Factorization(J), max(1, repeats // 2)))
+                             median_time(lambda: jaxanm.Factorization(J), max(1, repeats // 2)))
     lu = fact._lu if hasattr(fact, "_lu") else None
     out["nnz_LU"] = int(lu.L.nnz + lu.U.nnz) if lu is not None else None
     b = rng.standard_normal(n)
-    out["solve_s"] = _median(lambda: fact.solve(b), repeats)
+    out["solve_s"] = median_time(lambda: fact.solve(b), repeats)
     out["rss_build_mb"] = rss_build
     out["rss_peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return out

@@ -28,7 +28,6 @@ import time
 
 import numpy as np
 
-import jaxanm
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run
 

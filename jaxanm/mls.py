@@ -39,6 +39,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse
 from scipy.spatial import cKDTree
 
 from ._x64 import entry_point
@@ -48,6 +49,7 @@ __all__ = [
     "Stencils",
     "build_stencils",
     "evaluate_at",
+    "value_matrix",
     "value",
     "grad",
     "hessian",
@@ -367,6 +369,18 @@ def evaluate_at(points, h, targets, m_max=None, c=0.2, q=1) -> Stencils:
     tgt = _as_cloud("targets", targets)
     hh = _as_radius(h, tgt.shape[0], "target")
     return _stencils(pts, tgt, hh, m_max, c, q, "target", same_cloud=False)
+
+
+def value_matrix(st: Stencils, n_nodes: int | None = None) -> scipy.sparse.csc_matrix:
+    """The MLS value operator as a sparse (M, n_nodes) matrix: ``value_matrix(st) @ f == value(st, f)``.
+
+    ``n_nodes`` defaults to M (stencils of a cloud at its own points).  MLS is not interpolating,
+    so nodal parameters that reproduce given values solve ``value_matrix(st) @ f = values``.
+    """
+    index, phi = np.asarray(st.index), np.asarray(st.phi)
+    M = index.shape[0]
+    rows = np.repeat(np.arange(M), index.shape[1])
+    return scipy.sparse.csc_matrix((phi.reshape(-1), (rows, index.reshape(-1))), shape=(M, n_nodes or M))
 
 
 def _contract(w, st, f):

@@ -16,7 +16,7 @@ import pytest
 import jaxanm
 from jaxanm.fsw import geometry
 from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud, build_stencils
-from jaxanm.fsw.model import make_model, mu_reference
+from jaxanm.fsw.model import discretise, make_model, mu_reference
 from jaxanm.fsw.scene import (EFFECTS, Geometry, Material, Scene, SceneError, Time, load_scene,
                               override_keys, shipped_scenes)
 
@@ -164,10 +164,8 @@ def test_stencils_never_cross_the_tool_edge():
 
 def _small(effects, **kw):
     scene = Scene(effects=effects, geometry=Geometry(dr=7.5e-4), **kw)
-    cloud = build_cloud(scene.geometry)
-    st = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
-    model = make_model(scene, cloud)
-    return scene, cloud, model, model.params(cloud.points, st)
+    cloud, _, model, params, _ = discretise(scene)
+    return scene, cloud, model, params
 
 
 @pytest.mark.parametrize("effects, fields", [

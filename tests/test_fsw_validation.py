@@ -23,18 +23,16 @@ import scipy.sparse.linalg
 
 import jaxanm
 from jaxanm.fsw import load_scene, run
-from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud, build_stencils
-from jaxanm.fsw.model import make_model
+from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud
+from jaxanm.fsw.model import discretise
 from jaxanm.fsw.scene import Geometry, Material, Scene, Thermal, Time
 
 GAP = 4.5e-3  # R2 - R1 of every scene below
 
 
 def _discretise(scene):
-    cloud = build_cloud(scene.geometry)
-    st = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
-    model = make_model(scene, cloud)
-    return cloud, st, model, model.params(cloud.points, st)
+    cloud, st, model, params, _ = discretise(scene)
+    return cloud, st, model, params
 
 
 def _slope(dr, err):

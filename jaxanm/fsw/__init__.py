@@ -8,15 +8,17 @@
 """
 
 from . import calibration
-from .model import Model, make_model
+from .model import Discretisation, Model, discretise, make_model
 from .scene import EFFECTS, Scene, SceneError, load_scene, override_keys, shipped_scenes
 from .simulate import FSWResult, run
 
 __all__ = [
     "calibration",
+    "Discretisation",
     "EFFECTS",
     "FSWResult",
     "Model",
+    "discretise",
     "Scene",
     "SceneError",
     "load_scene",

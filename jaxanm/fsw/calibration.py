@@ -42,8 +42,8 @@ import numpy as np
 from .. import sensitivity
 from .._x64 import entry_point
 from ..errors import InputError, StepFailure
-from .geometry import PLATE, build_cloud, build_stencils, evaluate_stencils
-from .model import make_model
+from .geometry import PLATE, evaluate_stencils
+from .model import discretise
 from .scene import Scene
 
 __all__ = ["PARAMETERS", "FitResult", "fit", "gauss_newton", "material_theta", "simulate", "theta_to_material",
@@ -141,10 +141,7 @@ def theta_to_material(theta: dict) -> dict:
 def _setup(scene: Scene):
     """Model, params (with the observation stencils under ``"obs"``), initial state."""
     g = scene.geometry
-    cloud = build_cloud(g)
-    stencils = build_stencils(cloud.points, cloud.n_tool, g)
-    model = make_model(scene, cloud)
-    params = model.params(cloud.points, stencils)
+    cloud, stencils, model, params, x0 = discretise(scene)
     index, phi = np.asarray(stencils.index), np.asarray(stencils.phi)
     plate = np.flatnonzero(cloud.kind == PLATE)
     obs = {"probes": {}, "sections": {}}
@@ -155,7 +152,7 @@ def _setup(scene: Scene):
         st = evaluate_stencils(cloud.points, cloud.n_tool, g, np.linspace(s.start, s.end, s.samples))
         obs["sections"][s.name] = {"index": np.asarray(st.index), "phi": np.asarray(st.phi)}
     params["obs"] = obs
-    return model, params, model.initial_state(cloud.points)
+    return model, params, x0
 
 
 @entry_point

@@ -67,10 +67,10 @@ import scipy.sparse.linalg
 
 from .. import mls
 from .._x64 import entry_point
-from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, Cloud
+from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, Cloud, build_cloud, build_stencils
 from .scene import Scene
 
-__all__ = ["Effects", "Model", "make_model", "mu_reference"]
+__all__ = ["Discretisation", "Effects", "Model", "discretise", "make_model", "mu_reference"]
 
 CONSTANTS = ("K", "A", "n", "eps0", "rho", "Cp", "k", "beta", "rho_t", "Cp_t", "k_t", "omega",
              "h", "Ta", "T0", "lam", "dr", "U", "Ts", "mu_ref")
@@ -288,11 +288,7 @@ class Model:
         that carries the points' values onto the new stencils, so the next step's residual holds
         only the physical change.  Flattened in the layout of :attr:`fields`.
         """
-        index, phi = np.asarray(stencils.index), np.asarray(stencils.phi)
-        N = index.shape[0]
-        rows = np.repeat(np.arange(N), index.shape[1])
-        value_matrix = scipy.sparse.csc_matrix((phi.reshape(-1), (rows, index.reshape(-1))), shape=(N, N))
-        fitted = scipy.sparse.linalg.splu(value_matrix).solve(np.asarray(values, dtype=np.float64))
+        fitted = scipy.sparse.linalg.splu(mls.value_matrix(stencils)).solve(np.asarray(values, dtype=np.float64))
         return fitted.T.reshape(-1).copy()
 
     def initial_state(self, points: np.ndarray) -> np.ndarray:
@@ -340,3 +336,22 @@ class Model:
 def make_model(scene: Scene, cloud: Cloud) -> Model:
     """The :class:`Model` of ``scene`` on ``cloud``."""
     return Model(scene=scene, effects=Effects.of(scene), cloud=cloud)
+
+
+class Discretisation(NamedTuple):
+    """A scene discretised at t = 0: what :func:`jaxanm.integrate` needs, and what built it."""
+
+    cloud: Cloud
+    stencils: mls.Stencils
+    model: Model
+    params: dict
+    x0: np.ndarray
+
+
+def discretise(scene: Scene) -> Discretisation:
+    """Point cloud, MLS stencils, :class:`Model`, residual params and initial state of ``scene``."""
+    cloud = build_cloud(scene.geometry)
+    stencils = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
+    model = make_model(scene, cloud)
+    return Discretisation(cloud, stencils, model, model.params(cloud.points, stencils),
+                          model.initial_state(cloud.points))

@@ -25,8 +25,8 @@ import numpy as np
 
 import jaxanm
 
-from .geometry import PLATE, PLATE_EDGE, TOOL, TOOL_EDGE, build_cloud, build_stencils, evaluate_stencils
-from .model import Model, make_model
+from .geometry import PLATE, PLATE_EDGE, TOOL, TOOL_EDGE, build_stencils, evaluate_stencils
+from .model import Model, discretise
 from .scene import Scene
 
 __all__ = ["FSWResult", "run"]
@@ -267,11 +267,7 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         (also on :class:`jaxanm.StepFailure`).
     """
     solver = scene.solver.make() if solver is None else solver
-    cloud = build_cloud(scene.geometry)
-    stencils = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
-    model = make_model(scene, cloud)
-    params = model.params(cloud.points, stencils)
-    x0 = model.initial_state(cloud.points)
+    _, stencils, model, params, x0 = discretise(scene)
     tm = scene.time
     n_steps = max(1, math.ceil(tm.t_end / tm.dt - 1e-9))
     recorder = _Recorder(scene, model, stencils, x0, _save_steps(scene, n_steps))
