@@ -2,8 +2,10 @@
 
 :func:`write_outputs` writes everything a run produces into one directory::
 
-    summary.json                   scene, solver settings, t_end, n_points, stats, final probes
-    fields.npz                     t (S,), points (S, N, 2), u, v, T (S, N), material (N,)
+    summary.json                   scene, solver settings, t_end, n_points, stats, final probes,
+                                   rezone_times (Lagrangian re-seedings)
+    fields.npz                     t (S,), points (S, N, 2), u, v, T (S, N), material (N,);
+                                   nodes (S, N, 2) when a Lagrangian run was rezoned
     probes.csv                     t, then <probe>_u, <probe>_v, <probe>_T per registration point
     fields.pvd                     ParaView collection of the VTU files with their times
     vtu/fields_00000.vtu ...       point cloud (VTK vertex cells) with u, v, T, speed, material
@@ -102,7 +104,7 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
 
     ``solver_settings`` is any dict/dataclass describing the solver; ``None`` takes
     ``result.solver``.  ``probes_final`` holds x, y, u, v, T of every registration point at
-    the last accepted step.
+    the last accepted step; ``rezone_times`` the times the Lagrangian cloud was re-seeded.
     """
     path = Path(out_dir) / "summary.json"
     final = {}
@@ -119,6 +121,7 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
         "t_saved": t.tolist(),
         "stats": to_jsonable(result.stats),
         "probes_final": final,
+        "rezone_times": [float(t) for t in getattr(result, "rezone_times", [])],
     }
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
@@ -126,7 +129,11 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
 
 
 def write_fields(result, out_dir: str | os.PathLike) -> Path:
-    """Write ``fields.npz`` with ``t`` (S,), ``points`` (S, N, 2), ``u``, ``v``, ``T`` (S, N), ``material`` (N,)."""
+    """Write ``fields.npz`` with ``t`` (S,), ``points`` (S, N, 2), ``u``, ``v``, ``T`` (S, N), ``material`` (N,).
+
+    ``points`` are the material points (their colours are ``material``); a rezoned Lagrangian
+    run also stores the computational points as ``nodes`` (S, N, 2).
+    """
     path = Path(out_dir) / "fields.npz"
     arrays = {
         "t": np.asarray(result.t, dtype=np.float64),
@@ -136,6 +143,8 @@ def write_fields(result, out_dir: str | os.PathLike) -> Path:
         "T": np.asarray(result.T, dtype=np.float64),
         "material": np.asarray(result.material, dtype=np.int32),
     }
+    if getattr(result, "nodes", None) is not None:
+        arrays["nodes"] = np.asarray(result.nodes, dtype=np.float64)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:  # a file object: np.savez would append ".npz" to a name
             np.savez_compressed(f, **arrays)

@@ -200,6 +200,11 @@ class Geometry(_Section):
     validation converges on ``polar``; on ``grid`` its error stalls (about 3e-2 omega R1 at
     the grid points nearest the tool edge, from dr = (R2 - R1)/6 to /16).  The MLS influence radius is
     ``h_factor * dr``; ``c`` and ``q`` are the weight parameters of paper eq. 30.
+
+    ``rezone`` (used by the ``lagrangian`` effect only; 0 = never): the plate points are
+    re-seeded at their initial layout, and the state refitted there, once some plate point's
+    nearest neighbour comes closer than ``rezone`` times its distance at the last seeding
+    (the shear at the tool edge bunches the first rings; see :mod:`jaxanm.fsw.simulate`).
     """
 
     _name = "geometry"
@@ -210,6 +215,7 @@ class Geometry(_Section):
     layout: str = "polar"
     c: float = 0.2
     q: int = 1
+    rezone: float = 0.0
 
     def _validate(self):
         self._positive("R1", "R2", "dr", "c")
@@ -226,6 +232,9 @@ class Geometry(_Section):
         _check("geometry.layout", self.layout, self.layout in LAYOUTS, f"must be one of {LAYOUTS}")
         _check("geometry.c", self.c, self.c <= 10.0, "must be in (0, 10] (weight exp(-(r/c)^(2q)), the paper uses 0.2)")
         _check("geometry.q", self.q, 1 <= self.q <= 10, "must be an integer in [1, 10] (the paper uses 1)")
+        _check("geometry.rezone", self.rezone, 0.0 <= self.rezone < 1.0,
+               "must be in [0, 1): the fraction of a plate point's seeded nearest-neighbour distance "
+               "below which the Lagrangian cloud is re-seeded (0: never; e.g. 0.9)")
 
 
 @dataclasses.dataclass(frozen=True)

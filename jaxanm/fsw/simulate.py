@@ -11,6 +11,12 @@ after every accepted step that
   ``omega dt``, exactly; plate points ``x <- x + dt V``), rebuilds the stencils with the same
   width (nothing recompiles) and refits the unknowns so that the new stencils reproduce the
   values the points carry (:class:`jaxanm.Remap`);
+- with ``lagrangian`` and ``geometry.rezone > 0``: when the cloud has sheared too far (some
+  plate point's nearest neighbour is closer than ``rezone`` times its distance at the last
+  seeding), re-seeds the plate points at their initial layout, with the values the current
+  solution has there (:func:`_rezone`).  From the first rezoning on, the computational points
+  (``nodes``) and the material points (``points``, which carry the colours and the probes)
+  differ: the material points are then advected like tracers, through the moving cloud.
 - with ``tracers``: advects passive tracer particles (initially at the points) through the
   fixed cloud, for the mixing picture.
 """
@@ -22,10 +28,11 @@ import math
 from typing import Callable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 import jaxanm
 
-from .geometry import PLATE, PLATE_EDGE, TOOL, TOOL_EDGE, build_stencils, evaluate_stencils
+from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_stencils, evaluate_stencils
 from .model import Model, discretise
 from .scene import Scene
 
@@ -40,7 +47,8 @@ class FSWResult:
     ----------
     scene : Scene
     t : (S,) saved times (0, the scene's save times within t_end, t_end).
-    points : (S, N, 2) point positions at the saved times (they move in Lagrangian scenes).
+    points : (S, N, 2) material point positions at the saved times (they move in Lagrangian
+        scenes; they start at the cloud's points).
     u, v, T : (S, N) field values at the points (u = v = 0 without ``viscous``;
         T = T0 without ``conduction``).
     material : (N,) int, 0 tool, 1 plate y > 0 ("blue"), 2 plate y < 0 ("red").
@@ -54,6 +62,10 @@ class FSWResult:
     solver : the solver options used (``jaxanm.ANM``, ``Newton`` or ``ModifiedNewton``).
     tracers : with the ``tracers`` effect, ``{"points": (S, N, 2), "material": (N,)}``: passive
         particles started at the points, advected by the flow; else None.
+    nodes : (S, N, 2) positions of the computational points at the saved times when a
+        Lagrangian run was rezoned (they differ from ``points`` from the first rezoning on);
+        else None (the nodes are the material points).
+    rezone_times : times at which the plate points were re-seeded (empty without rezoning).
     """
 
     scene: Scene
@@ -68,6 +80,8 @@ class FSWResult:
     stats: jaxanm.Stats
     solver: object
     tracers: dict | None = None
+    nodes: np.ndarray | None = None
+    rezone_times: list = dataclasses.field(default_factory=list)
 
 
 def _rotate(points: np.ndarray, angle: float) -> np.ndarray:
@@ -75,10 +89,19 @@ def _rotate(points: np.ndarray, angle: float) -> np.ndarray:
     return points @ np.array([[c, s], [-s, c]])
 
 
+def _rigid(kind: np.ndarray) -> np.ndarray:
+    """Points that turn with the tool: the tool and both sides of its edge (sticking)."""
+    return (kind == TOOL) | (kind == TOOL_EDGE) | (kind == PLATE_EDGE)
+
+
 def _move(points: np.ndarray, kind: np.ndarray, velocity: np.ndarray, omega: float, dt: float) -> np.ndarray:
     """Material motion over dt: tool and edge points rotate rigidly, the others follow V."""
-    rigid = (kind == TOOL) | (kind == TOOL_EDGE) | (kind == PLATE_EDGE)
-    return np.where(rigid[:, None], _rotate(points, omega * dt), points + dt * velocity)
+    return np.where(_rigid(kind)[:, None], _rotate(points, omega * dt), points + dt * velocity)
+
+
+def _velocity(values: dict) -> np.ndarray:
+    """(N, 2) velocity from the ``{"u", "v", "T"}`` values."""
+    return np.stack([values["u"], values["v"]], axis=1)
 
 
 def _full_values(model: Model, values: np.ndarray) -> dict:
@@ -89,8 +112,13 @@ def _full_values(model: Model, values: np.ndarray) -> dict:
             "T": cols.get("T", np.full(values.shape[0], model.scene.thermal.T0))}
 
 
+def _nearest_spacing(points: np.ndarray) -> np.ndarray:
+    """Distance from each point to its nearest other point."""
+    return cKDTree(points).query(points, 2)[0][:, 1]
+
+
 class _Recorder:
-    """Host-side state of a run: moving cloud, probes, saved fields and sections."""
+    """Host-side state of a run: moving cloud, material points, probes, saved fields and sections."""
 
     def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_steps: set):
         self.scene, self.model, self.save_steps = scene, model, save_steps
@@ -103,38 +131,94 @@ class _Recorder:
                             for p in scene.probes}
         self.section_points = {s.name: np.linspace(s.start, s.end, s.samples) for s in scene.sections}
         self.probes = {"t": [], **{name: {k: [] for k in "xyuvT"} for name in self.probe_index}}
-        self.saved = {"t": [], "points": [], "u": [], "v": [], "T": []}
+        self.saved = {"t": [], "points": [], "nodes": [], "u": [], "v": [], "T": []}
         self.sections = {"t": [], **{name: {k: [] for k in "uvT"} for name in self.section_points}}
         self.tracers = cloud.points.copy() if model.effects.tracers else None
         self.tracer_saves = []
-        self._save_sections(x0, stencils)
-        self._record(0.0, _full_values(model, model.initial_values(self.points)), save=True)
+        # Rezoning: the material points separate from the nodes at the first re-seeding.
+        self.markers = None
+        self.rezone_times = []
+        self.seeded_spacing = _nearest_spacing(self.points[cloud.n_tool:])
+        self._save_sections(x0)
+        self._record(0.0, self.points, _full_values(model, model.initial_values(self.points)), save=True)
 
-    def _record(self, t: float, values: dict, save: bool) -> None:
-        """Probe values at every step; fields (and tracers) at the save steps."""
+    def _record(self, t: float, positions: np.ndarray, values: dict, save: bool) -> None:
+        """Probe values at every step; fields (and tracers) at the save steps.
+
+        ``positions`` and ``values``: the material points and the fields there.
+        """
         self.probes["t"].append(t)
         for name, i in self.probe_index.items():
             rec = self.probes[name]
-            rec["x"].append(self.points[i, 0])
-            rec["y"].append(self.points[i, 1])
+            rec["x"].append(positions[i, 0])
+            rec["y"].append(positions[i, 1])
             for k in "uvT":
                 rec[k].append(values[k][i])
         if save:
             self.saved["t"].append(t)
-            self.saved["points"].append(self.points.copy())
+            self.saved["points"].append(positions.copy())
+            self.saved["nodes"].append(self.points.copy())
             for k in "uvT":
                 self.saved[k].append(values[k].copy())
             if self.tracers is not None:
                 self.tracer_saves.append(self.tracers.copy())
 
-    def _save_sections(self, x, stencils) -> None:
+    def _save_sections(self, x) -> None:
         """MLS values along the sections, from unknowns ``x`` on the cloud they were solved on."""
         self.sections["t"].append(self.t)
         for name, targets in self.section_points.items():
-            st = evaluate_stencils(self.points, self.model.cloud.n_tool, self.scene.geometry, targets)
-            sec = _full_values(self.model, self.model.values(x, st))
+            sec = self._values_at(x, targets)
             for k in "uvT":
                 self.sections[name][k].append(sec[k])
+
+    def _values_at(self, x, targets: np.ndarray) -> dict:
+        """Full field values at arbitrary ``targets`` from unknowns ``x`` on the current nodes."""
+        st = evaluate_stencils(self.points, self.model.cloud.n_tool, self.scene.geometry, targets)
+        return _full_values(self.model, self.model.values(x, st))
+
+    def _advected(self, particles: np.ndarray, x, dt: float) -> np.ndarray:
+        """Passive particles moved over dt by the flow of unknowns ``x`` on the current nodes."""
+        v = self._values_at(x, particles)
+        return _move(particles, self.model.cloud.kind, _velocity(v), self.scene.tool.omega, dt)
+
+    def _marker_values(self, x, node_values: dict) -> dict:
+        """Fields at the material points: the nodes' own values where they coincide (tool and
+        tool-edge points, never re-seeded), MLS values elsewhere."""
+        free = ~_rigid(self.model.cloud.kind)
+        at = self._values_at(x, self.markers[free])
+        out = {k: v.copy() for k, v in node_values.items()}
+        for k in "uvT":
+            out[k][free] = at[k]
+        return out
+
+    def _sheared(self) -> bool:
+        """Whether some plate point is closer to its nearest neighbour than ``rezone`` times
+        its distance at the last seeding (never without ``geometry.rezone``)."""
+        fraction = self.scene.geometry.rezone
+        if fraction <= 0:
+            return False
+        spacing = _nearest_spacing(self.points[self.model.cloud.n_tool:])
+        return bool(np.any(spacing < fraction * self.seeded_spacing))
+
+    def _rezone(self, x, stencils) -> np.ndarray:
+        """Re-seed the plate points at their initial layout; return the nodes' new values.
+
+        Tool, tool-edge and plate-edge points keep their (rigidly turned) positions and values;
+        the plate and outer-ring points go back to the layout of t = 0, where they take the MLS
+        values of the current solution (``x`` on ``stencils``, the nodes before re-seeding).
+        The caller then moves the nodes and refits the unknowns as after any Lagrangian step.
+        """
+        cloud = self.model.cloud
+        moved = np.isin(cloud.kind, (PLATE, RING))
+        values = self.model.values(x, evaluate_stencils(self.points, cloud.n_tool, self.scene.geometry,
+                                                        cloud.points[moved]))
+        new_values = np.array(self.model.values(x, stencils))
+        new_values[moved] = values
+        self.points = self.points.copy()
+        self.points[moved] = cloud.points[moved]
+        self.seeded_spacing = _nearest_spacing(self.points[cloud.n_tool:])
+        self.rezone_times.append(self.t)
+        return new_values
 
     def after_step(self, t_new, x, params):
         """The :func:`jaxanm.integrate` hook: record, then move the cloud (Lagrangian) or tracers."""
@@ -147,20 +231,25 @@ class _Recorder:
         full = _full_values(model, values)
         save = self.step in self.save_steps
         if save:
-            self._save_sections(x, params["st"])
+            self._save_sections(x)
         if self.tracers is not None:
-            tst = evaluate_stencils(self.points, model.cloud.n_tool, scene.geometry, self.tracers)
-            tv = _full_values(model, model.values(x, tst))
-            self.tracers = _move(self.tracers, model.cloud.kind, np.stack([tv["u"], tv["v"]], axis=1),
-                                 scene.tool.omega, dt)
-        if model.effects.lagrangian:
-            velocity = np.stack([full["u"], full["v"]], axis=1)
-            self.points = _move(self.points, model.cloud.kind, velocity, scene.tool.omega, dt)
-            st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width)
-            self._record(self.t, full, save)
-            return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st))
-        self._record(self.t, full, save)
-        return params
+            self.tracers = self._advected(self.tracers, x, dt)
+        if not model.effects.lagrangian:
+            self._record(self.t, self.points, full, save)
+            return params
+        if self.markers is None:
+            self._record(self.t, self.points, full, save)
+        else:
+            self._record(self.t, self.markers, self._marker_values(x, full), save)
+            self.markers = self._advected(self.markers, x, dt)
+        if self._sheared():
+            if self.markers is None:  # the material points go on from where the nodes were
+                self.markers = _move(self.points, model.cloud.kind, _velocity(full), scene.tool.omega, dt)
+            values = self._rezone(x, params["st"])
+            full = _full_values(model, values)
+        self.points = _move(self.points, model.cloud.kind, _velocity(full), scene.tool.omega, dt)
+        st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width)
+        return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st))
 
     def result(self, solver, stats) -> FSWResult:
         """Assemble the :class:`FSWResult`."""
@@ -175,11 +264,13 @@ class _Recorder:
         tracers = None
         if self.tracers is not None:
             tracers = {"points": np.asarray(self.tracer_saves), "material": self.model.cloud.material.copy()}
-        return FSWResult(scene=self.scene, t=np.asarray(self.saved["t"]),
-                         points=np.asarray(self.saved["points"]),
+        points = np.asarray(self.saved["points"])
+        nodes = np.asarray(self.saved["nodes"])
+        return FSWResult(scene=self.scene, t=np.asarray(self.saved["t"]), points=points,
                          u=np.asarray(self.saved["u"]), v=np.asarray(self.saved["v"]),
                          T=np.asarray(self.saved["T"]), material=self.model.cloud.material.copy(),
-                         probes=probes, sections=sections, stats=stats, solver=solver, tracers=tracers)
+                         probes=probes, sections=sections, stats=stats, solver=solver, tracers=tracers,
+                         nodes=nodes if self.rezone_times else None, rezone_times=list(self.rezone_times))
 
 
 def _save_steps(scene: Scene, n_steps: int) -> set:
