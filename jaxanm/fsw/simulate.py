@@ -181,14 +181,13 @@ class _Recorder:
         v = self._values_at(x, particles)
         return _move(particles, self.model.cloud.kind, _velocity(v), self.scene.tool.omega, dt)
 
-    def _marker_values(self, x, node_values: dict) -> dict:
+    def _marker_values(self, node_values: dict, at_markers: dict) -> dict:
         """Fields at the material points: the nodes' own values where they coincide (tool and
-        tool-edge points, never re-seeded), MLS values elsewhere."""
+        tool-edge points, never re-seeded), the MLS values ``at_markers`` elsewhere."""
         free = ~_rigid(self.model.cloud.kind)
-        at = self._values_at(x, self.markers[free])
         out = {k: v.copy() for k, v in node_values.items()}
         for k in "uvT":
-            out[k][free] = at[k]
+            out[k][free] = at_markers[k][free]
         return out
 
     def _sheared(self) -> bool:
@@ -240,8 +239,9 @@ class _Recorder:
         if self.markers is None:
             self._record(self.t, self.points, full, save)
         else:
-            self._record(self.t, self.markers, self._marker_values(x, full), save)
-            self.markers = self._advected(self.markers, x, dt)
+            at = self._values_at(x, self.markers)
+            self._record(self.t, self.markers, self._marker_values(full, at), save)
+            self.markers = _move(self.markers, model.cloud.kind, _velocity(at), scene.tool.omega, dt)
         if self._sheared():
             if self.markers is None:  # the material points go on from where the nodes were
                 self.markers = _move(self.points, model.cloud.kind, _velocity(full), scene.tool.omega, dt)
