@@ -275,9 +275,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except OSError as exc:
         return _error(f"cannot write results to {out_dir}: {exc}", 1)
     stats = result.stats
+    rezoned = getattr(result, "rezone_times", [])
+    rezonings = f", rezoned at t = {', '.join(f'{t:.4g}' for t in rezoned)} s" if rezoned else ""
     print(f"{scene.name} ({scene.solver.kind}): t = {float(result.t[-1]):.6g} s, "
           f"{stats.time_steps} steps, {stats.factorizations} factorizations, "
-          f"{stats.wall_time_s:.1f} s wall")
+          f"{stats.wall_time_s:.1f} s wall{rezonings}")
     print(f"{len(paths)} files written to {out_dir}")
     return 0
 
