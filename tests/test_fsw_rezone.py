@@ -74,7 +74,7 @@ def test_rezoned_run_agrees_with_the_unrezoned_run():
     The yardstick: half the isothermal n = 0.3 Couette error at *twice* this resolution
     (4.4e-2 omega R1 at dr = 3.75e-4, test_couette_power_law_converges), 2.2e-2 omega R1;
     the same fraction of the heating for T.  Measured: 9 rezonings in 10 steps, V differs by
-    1.6e-2 omega R1, T by 7.7e-3 of the heating, the material points by 2.1e-3 omega R1 t.
+    1.6e-2 omega R1, T by 7.7e-3 of the heating, the material points by 2.6e-3 omega R1 t.
     """
     ref = run(_couette_scene("0"))
     res = run(_couette_scene("0.9999"))

@@ -236,18 +236,22 @@ class _Recorder:
         if not model.effects.lagrangian:
             self._record(self.t, self.points, full, save)
             return params
+        # Recorded at t_new: the material points where this step's velocity takes them (the
+        # step was solved on the cloud of the previous positions, as before any rezoning).
+        kind, omega = model.cloud.kind, scene.tool.omega
         if self.markers is None:
-            self._record(self.t, self.points, full, save)
+            material, material_values = _move(self.points, kind, _velocity(full), omega, dt), full
         else:
             at = self._values_at(x, self.markers)
-            self._record(self.t, self.markers, self._marker_values(full, at), save)
-            self.markers = _move(self.markers, model.cloud.kind, _velocity(at), scene.tool.omega, dt)
+            material_values = self._marker_values(full, at)
+            material = self.markers = _move(self.markers, kind, _velocity(at), omega, dt)
         if self._sheared():
             if self.markers is None:  # the material points go on from where the nodes were
-                self.markers = _move(self.points, model.cloud.kind, _velocity(full), scene.tool.omega, dt)
+                self.markers = material
             values = self._rezone(x, params["st"])
             full = _full_values(model, values)
-        self.points = _move(self.points, model.cloud.kind, _velocity(full), scene.tool.omega, dt)
+        self.points = _move(self.points, kind, _velocity(full), omega, dt)
+        self._record(self.t, material, material_values, save)
         st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width)
         return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st))
 
