@@ -27,6 +27,7 @@ import tomllib
 from pathlib import Path
 
 __all__ = [
+    "EDGE_ROWS",
     "EFFECTS",
     "EFFECT_REQUIRES",
     "Geometry",
@@ -88,6 +89,8 @@ EFFECT_REQUIRES = {
 """Effects that need other effects (the field they act on)."""
 
 LAYOUTS = ("polar", "grid")
+EDGE_ROWS = ("flux", "half_cell")
+"""Temperature rows of the plate-edge points (:class:`Thermal`)."""
 SOLVER_KINDS = ("anm", "newton", "modified_newton")
 MAX_POINTS = 200_000
 """Largest point cloud a scene may ask for (about ``pi (R2 / dr)^2`` points): checked on load,
@@ -278,16 +281,25 @@ class Tool(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class Thermal(_Section):
-    """Robin coefficient ``h`` (W/m^2/K), ambient ``Ta`` and initial ``T0`` temperatures (K)."""
+    """Robin coefficient ``h`` (W/m^2/K), ambient ``Ta`` and initial ``T0`` temperatures (K).
+
+    ``edge_rows``: the temperature rows of the plate-edge points at r = R1, one of
+    :data:`EDGE_ROWS`.  ``"flux"`` collocates the flux condition alone there (the heat
+    dissipated within half a spacing of the tool edge then never enters the discrete balance);
+    ``"half_cell"`` collocates the heat balance of the edge cell, flux condition folded in
+    (:mod:`jaxanm.fsw.model`, docs/notes/energy_balance.md).
+    """
 
     _name = "thermal"
     h: float = 1000.0
     Ta: float = 300.0
     T0: float = 300.0
+    edge_rows: str = "flux"
 
     def _validate(self):
         _check("thermal.h", self.h, self.h >= 0, "must be >= 0")
         self._positive("Ta", "T0")
+        _check("thermal.edge_rows", self.edge_rows, self.edge_rows in EDGE_ROWS, f"must be one of {EDGE_ROWS}")
 
 
 @dataclasses.dataclass(frozen=True)
