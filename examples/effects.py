@@ -25,9 +25,10 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from fsw_scene import couette_power, heat_content, unknowns  # noqa: E402
+from fsw_scene import couette_power, unknowns  # noqa: E402
 
 from jaxanm.fsw import load_scene, run  # noqa: E402
+from jaxanm.fsw.energy import dissipated_power, stored_heat  # noqa: E402
 from jaxanm.fsw.model import mu_reference  # noqa: E402
 
 LADDER = (
@@ -71,7 +72,8 @@ def measure(scene) -> dict:
         "result": result, "points": n_points, "unknowns": n_unknowns,
         "factorizations": st.factorizations, "iterations": st.newton_iterations,
         "substeps": st.substeps, "per_step": np.diff(history, prepend=0), "wall": wall,
-        "heat": heat_content(result) if scene.has("conduction") else 0.0,
+        "heat": stored_heat(result) if scene.has("conduction") else 0.0,
+        "power": max(dissipated_power(result, s) for s in range(1, len(result.t))),
         "T_plate": float(T[material != 0].max()), "T_tool": float(T[material == 0].max()),
         "v1": float(result.probes[next(k for k in result.probes if k != "t")]["v"][-1]),
     }
