@@ -22,7 +22,8 @@ from .linalg import Factorization
 from .solvers import ANM, ModifiedNewton, Newton, Problem
 from .stats import Stats
 
-_AUTO_SPARSE_SIZE = 400  # above this many unknowns "auto" picks the sparse Jacobian
+AUTO_SPARSE_SIZE = 400
+"""Above this many unknowns ``jacobian="auto"`` picks the sparse Jacobian."""
 
 
 class Remap(NamedTuple):
@@ -55,7 +56,9 @@ class Solution:
     observed: dict | None = None
 
 
-def _validate(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at):
+def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at):
+    """Check a run's inputs before any computation (:class:`InputError` naming the fix);
+    return ``x0`` and ``scale`` as float64 arrays.  Shared with :mod:`jaxanm.sensitivity`."""
     x0 = np.asarray(x0, dtype=np.float64)
     if x0.ndim != 1 or x0.size == 0:
         raise InputError(f"x0 must be a non-empty 1-D array of unknowns, got shape {x0.shape}; flatten your state")
@@ -82,7 +85,15 @@ def _validate(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at):
     return x0, scale
 
 
-def _params_float64(params):
+def jacobian_kind(jacobian: str, sparsity, n: int) -> str:
+    """``"dense"`` or ``"sparse"``: ``jacobian`` itself, or for ``"auto"`` sparse when a pattern
+    is given or there are more than :data:`AUTO_SPARSE_SIZE` unknowns."""
+    if jacobian != "auto":
+        return jacobian
+    return "sparse" if (sparsity is not None or n > AUTO_SPARSE_SIZE) else "dense"
+
+
+def params_float64(params):
     """Floating leaves of ``params`` as float64; warn when a lower precision was given."""
     lowered = []
 
@@ -188,7 +199,7 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         residual is not finite; the message gives step, time, a_max and residual norm.  The
         exception (and a ``KeyboardInterrupt``) carries the run's statistics so far as ``stats``.
     """
-    x0, scale = _validate(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at)
+    x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at)
     if checkpoint_every and checkpoint is None:
         raise InputError("checkpoint_every needs a checkpoint path: pass checkpoint='run.ckpt'")
     if resume and checkpoint is None:
@@ -196,11 +207,10 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     if host_state is not None and not (isinstance(host_state, tuple) and len(host_state) == 2
                                        and all(callable(f) for f in host_state)):
         raise InputError("host_state must be a (get, set) pair of callables")
-    params = _params_float64(params)
+    params = params_float64(params)
     start = time.perf_counter()
     n = x0.size
-    if jacobian == "auto":
-        jacobian = "sparse" if (sparsity is not None or n > _AUTO_SPARSE_SIZE) else "dense"
+    jacobian = jacobian_kind(jacobian, sparsity, n)
     if jacobian == "sparse" and sparsity is None:
         sparsity = detect_sparsity(residual, x0, x0, t0 + dt, dt, params)
     if sparsity is not None and not (callable(sparsity) or scipy.sparse.issparse(sparsity)):

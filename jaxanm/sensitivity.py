@@ -58,7 +58,7 @@ from jax.flatten_util import ravel_pytree
 
 from ._x64 import entry_point
 from .errors import InputError, StepFailure
-from .integrate import _AUTO_SPARSE_SIZE, _params_float64, _validate
+from .integrate import check_run_inputs, jacobian_kind, params_float64
 from .jacobian import detect_sparsity
 from .linalg import factorize
 from .solvers import Problem
@@ -270,13 +270,13 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
         with a fresh Jacobian.
     """
     start = time.perf_counter()
-    x0, scale = _validate(x0, t0, t1, dt, solver, scale, jacobian, None, None)
+    x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, None, None)
     if not callable(observe):
         raise InputError("observe must be a callable (t, x, params) -> dict of arrays (jax.numpy)")
     if not (isinstance(polish_tol, float) and 0 < polish_tol < 1e-3):
         raise InputError(f"polish_tol must be a float in (0, 1e-3), got {polish_tol!r}")
     theta = _theta_float64(theta)
-    params = _params_float64(params)
+    params = params_float64(params)
     if bind is None:
         _check_paths(params, theta)
         bind = bind_paths
@@ -288,8 +288,7 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
     step_rhs, jac_x, obs, obs_tangent = _kernels(residual, bind, observe)
 
     n = x0.size
-    if jacobian == "auto":
-        jacobian = "sparse" if (sparsity is not None or n > _AUTO_SPARSE_SIZE) else "dense"
+    jacobian = jacobian_kind(jacobian, sparsity, n)
     if jacobian == "sparse" and sparsity is None:
         sparsity = detect_sparsity(residual, x0, x0, t0 + dt, dt, bound)
     stats, sst = Stats(), SensitivityStats()
