@@ -20,8 +20,8 @@ import math
 
 import numpy as np
 
-from .geometry import build_stencils, evaluate_stencils
-from .model import discretise
+from .geometry import build_cloud, build_stencils, evaluate_stencils
+from .model import make_model
 
 __all__ = ["annulus_quadrature", "dissipated_power", "stored_heat"]
 
@@ -47,7 +47,8 @@ def annulus_quadrature(r_in: float, r_out: float, cells: int = 60, angles: int =
 def _fields(result, s: int, targets: np.ndarray) -> dict:
     """u, v, T and the velocity gradient at ``targets`` from the values of saved step ``s``."""
     scene = result.scene
-    cloud, _, model, _, _ = discretise(scene)
+    cloud = build_cloud(scene.geometry)
+    model = make_model(scene, cloud)
     points = np.asarray(result.points[s], dtype=np.float64)
     st = build_stencils(points, cloud.n_tool, scene.geometry)
     columns = {"u": result.u[s], "v": result.v[s], "T": result.T[s]}
