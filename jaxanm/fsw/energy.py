@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from .. import mls
 from .geometry import build_cloud, build_stencils, evaluate_stencils
 from .model import make_model
 
@@ -58,10 +59,8 @@ def _fields(result, s: int, targets: np.ndarray) -> dict:
     out = {}
     for f in ("u", "v", "T"):
         if f in nodal:
-            a = np.asarray(nodal[f])[np.asarray(at.index)]
-            out[f] = np.sum(np.asarray(at.phi) * a, axis=1)
-            out[f + "x"] = np.sum(np.asarray(at.dx) * a, axis=1)
-            out[f + "y"] = np.sum(np.asarray(at.dy) * a, axis=1)
+            out[f] = np.asarray(mls.value(at, nodal[f]))
+            out[f + "x"], out[f + "y"] = np.asarray(mls.grad(at, nodal[f])).T
     if "T" not in out:
         out["T"] = np.full(targets.shape[0], scene.thermal.T0)
     return out
