@@ -46,7 +46,7 @@ def test_rezone_reseeds_the_plate_and_remaps_a_quadratic_field_exactly():
     st = build_stencils(sheared, cloud.n_tool, scene.geometry, m_max=rec.width)
     x = model.fit_state(_quadratic(sheared), st)
     rec.points = sheared
-    values = rec._rezone(x, st)
+    values = rec._rezone(x, model.values(x, st))
 
     moved = np.isin(cloud.kind, (PLATE, RING))
     assert np.array_equal(rec.points[moved], cloud.points[moved])  # back on the layout

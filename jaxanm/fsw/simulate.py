@@ -199,20 +199,20 @@ class _Recorder:
         spacing = _nearest_spacing(self.points[self.model.cloud.n_tool:])
         return bool(np.any(spacing < fraction * self.seeded_spacing))
 
-    def _rezone(self, x, stencils) -> np.ndarray:
+    def _rezone(self, x, values: np.ndarray) -> np.ndarray:
         """Re-seed the plate points at their initial layout; return the nodes' new values.
 
         Tool, tool-edge and plate-edge points keep their (rigidly turned) positions and values;
         the plate and outer-ring points go back to the layout of t = 0, where they take the MLS
-        values of the current solution (``x`` on ``stencils``, the nodes before re-seeding).
+        values of the current solution (``x`` on the nodes before re-seeding, whose own values
+        are ``values``).
         The caller then moves the nodes and refits the unknowns as after any Lagrangian step.
         """
         cloud = self.model.cloud
         moved = np.isin(cloud.kind, (PLATE, RING))
-        values = self.model.values(x, evaluate_stencils(self.points, cloud.n_tool, self.scene.geometry,
-                                                        cloud.points[moved]))
-        new_values = np.array(self.model.values(x, stencils))
-        new_values[moved] = values
+        new_values = np.array(values)
+        new_values[moved] = self.model.values(x, evaluate_stencils(self.points, cloud.n_tool, self.scene.geometry,
+                                                                   cloud.points[moved]))
         self.points = self.points.copy()
         self.points[moved] = cloud.points[moved]
         self.seeded_spacing = _nearest_spacing(self.points[cloud.n_tool:])
@@ -248,7 +248,7 @@ class _Recorder:
         if self._sheared():
             if self.markers is None:  # the material points go on from where the nodes were
                 self.markers = material
-            values = self._rezone(x, params["st"])
+            values = self._rezone(x, values)
             full = _full_values(model, values)
         self.points = _move(self.points, kind, _velocity(full), omega, dt)
         self._record(self.t, material, material_values, save)
