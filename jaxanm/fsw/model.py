@@ -85,10 +85,10 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
-import scipy.sparse.linalg
 
 from .. import mls
 from .._x64 import entry_point
+from ..linalg import sparse_lu
 from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, Cloud, build_cloud, build_stencils
 from .scene import Scene
 
@@ -320,7 +320,7 @@ class Model:
         that carries the points' values onto the new stencils, so the next step's residual holds
         only the physical change.  Flattened in the layout of :attr:`fields`.
         """
-        fitted = scipy.sparse.linalg.splu(mls.value_matrix(stencils)).solve(np.asarray(values, dtype=np.float64))
+        fitted = sparse_lu(mls.value_matrix(stencils)).solve(np.asarray(values, dtype=np.float64))
         return fitted.T.reshape(-1).copy()
 
     def initial_state(self, points: np.ndarray) -> np.ndarray:
