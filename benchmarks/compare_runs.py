@@ -34,6 +34,10 @@ import numpy as np
 def load_run(path: str | os.PathLike) -> dict:
     """Summary, fields and probe histories of one run directory."""
     path = Path(path)
+    missing = [name for name in ("summary.json", "fields.npz", "probes.csv") if not (path / name).is_file()]
+    if missing:
+        raise FileNotFoundError(f"{path} is not the output directory of a finished `jaxanm run` (no "
+                                f"{', '.join(missing)}); pass the --out DIR of each run to compare")
     summary = json.loads((path / "summary.json").read_text(encoding="utf-8"))
     fields = dict(np.load(path / "fields.npz"))
     probes = np.genfromtxt(path / "probes.csv", delimiter=",", names=True)

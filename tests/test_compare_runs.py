@@ -67,3 +67,8 @@ def test_runs_saved_at_different_times_are_refused(tmp_path):
     run["fields"]["t"] = run["fields"]["t"] * 2
     with pytest.raises(ValueError, match="different times"):
         compare_runs.differences(run, ref)
+
+
+def test_a_directory_without_run_outputs_is_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match="not the output directory.*summary.json"):
+        compare_runs.load_run(tmp_path)
