@@ -11,7 +11,11 @@ from test_examples import load_example
 
 def test_calibrate_example_fits_noisy_data_within_its_predicted_uncertainty(capsys, tmp_path):
     example = load_example("calibrate")
-    summary = example.run(overrides={"time.t_end": 8e-3}, seed=1, max_iter=15, verbose=False)
+    # the K-A valley is shallow (Gauss-Newton eigenvalues 2.7e3 against 4e8): 15 simulations
+    # stopped short of the minimum on one machine and not on another, so give the fit room
+    # and require that it converged before judging its values against their uncertainties
+    summary = example.run(overrides={"time.t_end": 8e-3}, seed=1, max_iter=40, verbose=False)
+    assert summary["fit"].converged
     example.print_table(summary)
     example.plot(summary, tmp_path / "calibration.png")
     out = capsys.readouterr().out

@@ -184,3 +184,16 @@ def test_fit_recovers_noiseless_parameters():
     for key in ("K", "A", "n"):
         assert abs(fitted[key] / truth[key] - 1) < 1e-3, (key, fitted[key], truth[key])
     assert result.loss_history[-1] < 1e-6 * result.loss_history[0]
+    assert result.converged
+
+
+def test_fit_that_runs_out_of_simulations_says_so():
+    """Start 20 % away: two simulations cannot reach the minimum (the noiseless fit needs more)."""
+    scene = load_scene("calibration_small").with_overrides(
+        {"time.dt": 4e-3, "time.t_end": 8e-3, "tool.omega": 40.0})
+    true = calibration.material_theta(scene)
+    data = [calibration.simulate(scene, true, tangents=False).observed]
+    start = {"logK": true["logK"] + math.log(0.8), "A": 1.2 * true["A"], "n": 1.2 * true["n"]}
+    with pytest.warns(UserWarning, match="max_iter = 2 simulations ran out.*raise max_iter"):
+        result = calibration.fit([scene], data, start, sigma={"T": 0.01, "u": 1e-5, "v": 1e-5}, max_iter=2)
+    assert not result.converged and result.evaluations == 2

@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import warnings
 from typing import Callable, Sequence
 
 import jax
@@ -301,8 +302,10 @@ def weighted_residuals(observed, data, sigma, jacobian=None):
 class FitResult:
     """Result of :func:`fit`: fitted ``theta``, per-iteration ``loss_history`` (accepted steps,
     starting with the start point), ``theta_history``, number of simulations (``evaluations``,
-    each with sensitivities), and the Gauss-Newton matrix ``gn_matrix`` at the fitted point
-    (its inverse is the parameters' covariance for the given sigmas).
+    each with sensitivities), the Gauss-Newton matrix ``gn_matrix`` at the fitted point
+    (its inverse is the parameters' covariance for the given sigmas), and ``converged``: False
+    when ``max_iter`` simulations ran out before a stopping test held (the fitted values and
+    their covariance are then not those of the minimum; raise ``max_iter``).
     """
 
     theta: dict
@@ -311,6 +314,7 @@ class FitResult:
     evaluations: int
     gn_matrix: np.ndarray
     theta_names: list
+    converged: bool
 
 
 @entry_point
@@ -375,6 +379,7 @@ def fit(scenes: Sequence[Scene], data: Sequence[dict], start: dict, *, sigma: di
     history, thetas = [loss], [dict(theta)]
     if callback is not None:
         callback(0, dict(theta), loss)
+    converged = False
     while evaluations < max_iter:
         g = {k: jnp.asarray(grad[i]) for i, k in enumerate(names)}
         updates, _ = opt.update(g, state, params, gn_matrix=F)
@@ -398,10 +403,15 @@ def fit(scenes: Sequence[Scene], data: Sequence[dict], start: dict, *, sigma: di
             decrement = 0.5 * float(grad @ np.linalg.solve(F, grad))  # predicted decrease of a full step
             if (np.all(np.abs(step) <= xtol * np.maximum(1.0, np.abs([theta[k] for k in names])))
                     or decrement <= ftol * max(1.0, loss)):
+                converged = True
                 break
         else:
             state = {"step": state["step"] / 8.0}
             if state["step"] < 1e-6:  # no decrease even along a tiny Gauss-Newton step: at the minimum
+                converged = True
                 break
+    if not converged:
+        warnings.warn(f"calibration.fit: max_iter = {max_iter} simulations ran out before the fit converged "
+                      f"(loss {loss:.6g}); the fitted values are not the minimum: raise max_iter", stacklevel=2)
     return FitResult(theta=theta, loss_history=history, theta_history=thetas, evaluations=evaluations,
-                     gn_matrix=F, theta_names=names)
+                     gn_matrix=F, theta_names=names, converged=converged)
