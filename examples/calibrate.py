@@ -109,6 +109,7 @@ def run(scene_name: str = "calibration_small", design=EXPERIMENTS, overrides=Non
         "fitted": calibration.theta_to_material(fit.theta),
         "loss_history": [float(v) for v in fit.loss_history],
         "simulations": fit.evaluations,
+        "converged": fit.converged,
         "experiments": [{"T0": T0, "omega": om} for T0, om in design],
         "sigma": dict(sigma),
         "data_points": _count(data, sigma),
@@ -131,7 +132,8 @@ def print_table(summary: dict) -> None:
         print(f"{k:4s}{s['true'][k]:14.6g}{s['start'][k]:14.6g}{s['fitted'][k]:14.6g}"
               f"{s['relative_error'][k]:12.2e}{pstd[k]:12.2e}")
     print("loss history:", " ".join(f"{v:.4g}" for v in s["loss_history"]))
-    print(f"{s['simulations']} simulations with sensitivities, {s['wall_time_s']:.1f} s; Gauss-Newton "
+    print(f"{s['simulations']} simulations with sensitivities ({'converged' if s['converged'] else 'NOT converged'}), "
+          f"{s['wall_time_s']:.1f} s; Gauss-Newton "
           f"eigenvalues {', '.join(f'{e:.3g}' for e in s['gauss_newton_eigenvalues'])}")
 
 
