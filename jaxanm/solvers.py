@@ -185,6 +185,14 @@ class ANM:
         of the step's residual: once ``R(d_s)`` is tiny, a stale K* still gives the same
         a_max, so quasi-steady steps refactorise to resolve increments far below the state's
         accuracy (docs/notes/anm_on_fsw_paper.md).
+    adaptive : bool
+        Order-adaptive series: ``order`` is the maximum.  The coefficients are computed one
+        order at a time (the jet at order j is truncated to the j - 1 terms known, so it costs
+        O(j^2), not O(p^2)), and the series is accepted at the first order j whose validity
+        range (eq. 26 with c_j as last term) reaches a = 1 and whose end point passes the check
+        below; at order p everything is as in the fixed-order mode.  The orders used are in
+        ``stats.orders``.  ``False`` (fixed order p, as in the paper's Table 1) keeps one
+        compiled jet for all orders.
 
     Notes
     -----
@@ -207,6 +215,7 @@ class ANM:
     tol: float = 1e-6
     max_substeps: int = 50
     criterion: str = "increment"
+    adaptive: bool = False
 
     def __post_init__(self):
         if not (isinstance(self.order, (int, np.integer)) and not isinstance(self.order, bool) and self.order >= 2):
@@ -215,6 +224,8 @@ class ANM:
                              "(an order-1 series is one linearised step: use jaxanm.ModifiedNewton for that)")
         _check_tol("ANM", self.tol)
         _check_count("ANM", "max_substeps", self.max_substeps, 0)
+        if not isinstance(self.adaptive, (bool, np.bool_)):
+            raise InputError(f"ANM.adaptive must be True or False, got {self.adaptive!r}")
         if self.criterion not in ("increment", "state"):
             raise InputError(f"ANM.criterion must be 'increment' (eq. 26) or 'state', got {self.criterion!r}")
 
@@ -230,9 +241,17 @@ class _ANMStepper:
         self.opts = opts
         self.problem = problem
         self.fact = None
+        self._accepted_residual = None
+
+    def accepted_residual(self):
+        """The residual at the state the last :meth:`step` returned (evaluated by its end-point
+        check), or None; each value is handed out once."""
+        r, self._accepted_residual = self._accepted_residual, None
+        return r
 
     def step(self, step: int, x_old, t, dt, params):
         P, p, st = self.problem, self.opts.order, self.problem.stats
+        self._accepted_residual = None
         d_s = np.array(x_old, dtype=np.float64)
         fresh = False
         substeps = 0
@@ -252,9 +271,16 @@ class _ANMStepper:
             with st.timer("solve"):
                 coeffs[0] = -self.fact.solve(r0)
             for j in range(2, p + 1):
-                rj = P.series(d_s, coeffs[: p - 1], x_old, t, dt, params)[j - 2]
+                if self.opts.adaptive:  # order j - 1 of the path needs c_1 .. c_{j-1} only
+                    rj = P.series(d_s, coeffs[: j - 1], x_old, t, dt, params)[-1]
+                else:  # one compiled jet for every order, zeros for the unknown terms
+                    rj = P.series(d_s, coeffs[: p - 1], x_old, t, dt, params)[j - 2]
                 with st.timer("solve"):
                     coeffs[j - 1] = coeffs[j - 2] - self.fact.solve(rj)
+                if self.opts.adaptive and j < p:
+                    accepted = self._accept_early(coeffs[:j], d_s, x_old, t, dt, params)
+                    if accepted is not None:
+                        return accepted
             amax = validity_range(coeffs, P.scale, self.opts.tol,
                                   state=d_s if self.opts.criterion == "state" else None)
             if amax >= 1.0:
@@ -262,6 +288,8 @@ class _ANMStepper:
                 check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], x_old, t, dt, params)
                 if check <= CHECK_LIMIT:
                     st.amax.append(amax)
+                    st.orders.append(p)
+                    self._accepted_residual = r_end
                     return d_end
                 # the series claimed a = 1 but its end point is not converged (e.g. a last
                 # coefficient that vanishes by parity): not an accepted step
@@ -297,6 +325,25 @@ class _ANMStepper:
             st.substeps += 1  # counted when taken (a refused sub-step is a failure, not a sub-step)
             d_s = d_s + evaluate_series(coeffs, amax)  # continuation: restart the homotopy there
             fresh = False
+
+    def _accept_early(self, coeffs, d_s, x_old, t, dt, params):
+        """Order-adaptive acceptance of the series truncated at order ``j = len(coeffs) < p``:
+        the end point ``d_s + c_1 + ... + c_j`` when its a_max (eq. 26 at order j) reaches 1 and
+        it passes the same end-point check as a full series, else None (the series goes on to
+        order j + 1; a truncated series that fails is no failure of the step)."""
+        P, st = self.problem, self.problem.stats
+        amax = validity_range(coeffs, P.scale, self.opts.tol,
+                              state=d_s if self.opts.criterion == "state" else None)
+        if not amax >= 1.0:
+            return None
+        d_end = d_s + coeffs.sum(axis=0)
+        check, _, r_end = self._end_point_check(d_end, d_s, coeffs[0], x_old, t, dt, params)
+        if check > CHECK_LIMIT:
+            return None
+        st.amax.append(amax)
+        st.orders.append(coeffs.shape[0])
+        self._accepted_residual = r_end
+        return d_end
 
     def _end_point_check(self, d_end, d_s, c_1, x_old, t, dt, params):
         """A-posteriori check of an accepted series: the Newton distance of its end point by the
@@ -374,6 +421,10 @@ class _NewtonStepper:
         self.reuse = reuse
         self.reuses_kstar = reuse
         self.fact = None
+
+    def accepted_residual(self):
+        """None: Newton's last residual is that of the iterate before the last correction."""
+        return None
 
     def step(self, step: int, x_old, t, dt, params):
         P, st = self.problem, self.problem.stats

@@ -17,7 +17,8 @@ class Stats:
     series (one per order and per series); ``residual_evaluations`` counts plain residual
     evaluations (series evaluations excluded).  ``resumes`` counts continuations from a
     checkpoint (each re-factorises the stored K* once, not counted in ``factorizations``).  ``amax`` holds, for ANM, the validity range
-    of the accepted series of each time step; ``residual_norm`` the max-norm of the step
+    of the accepted series of each time step and ``orders`` the order of that series (the
+    maximum order unless the ANM is order-adaptive); ``residual_norm`` the max-norm of the step
     residual at each accepted state.  ``wall_time`` splits ``wall_time_s`` into
     ``jacobian``, ``factorize``, ``series``, ``solve`` (triangular solves) and ``other``.
     """
@@ -32,6 +33,7 @@ class Stats:
     dt_halvings: int = 0
     resumes: int = 0
     amax: list = dataclasses.field(default_factory=list)
+    orders: list = dataclasses.field(default_factory=list)
     residual_norm: list = dataclasses.field(default_factory=list)
     wall_time_s: float = 0.0
     wall_time: dict = dataclasses.field(default_factory=lambda: dict.fromkeys(TIMER_KEYS, 0.0))
@@ -61,6 +63,6 @@ class Stats:
     def summary(self) -> dict:
         """The headline numbers (no per-step lists), for printing side by side."""
         d = self.as_dict()
-        del d["amax"], d["residual_norm"]
+        del d["amax"], d["residual_norm"], d["orders"]
         d["wall_time"] = {k: round(v, 4) for k, v in self.wall_time.items()}
         return d
