@@ -11,6 +11,7 @@ from typing import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.experimental import jet
 
 from ._x64 import entry_point
@@ -61,3 +62,73 @@ def taylor_coefficients(f: Callable, x0, terms: Sequence, *args) -> list:
     terms = jnp.stack([jnp.asarray(t, dtype=jnp.float64) for t in terms])
     f0, fs = jax.jit(path_coefficients, static_argnums=0)(f, x0, terms, *args)
     return [f0, *list(fs)]
+
+
+class AffinePath:
+    """Taylor coefficients of ``f(x(a), *args)`` along ``x(a) = x0 + sum_k a^k c_k``, one order at
+    a time, with the affine part of ``f`` applied outside ``jet`` (:mod:`jaxanm.affine`).
+
+    The frontier values (stencil sums and the like, affine in x) have coefficients ``A c_k``:
+    one linear map (a ``jax.jvp`` of the affine part) per new ``c_k``, computed once and kept.
+    Only the non-affine rest is expanded by ``jet``, from the kept frontier coefficients.
+    :meth:`next` appends ``c_k`` and returns ``f_k``.  ``pad_to=None`` truncates the jet at the
+    k terms known (one compiled jet per order, O(k^2) work at order k); ``pad_to=K`` expands
+    with K terms, zeros for the unknown ones (one compiled jet for every order up to K).
+    """
+
+    def __init__(self, functions: "AffineFunctions", x0, args: tuple, pad_to: int | None = None):
+        self._fn, self._x0, self._args, self._pad_to = functions, x0, args, pad_to
+        self._f0 = functions.frontier(x0, *args)
+        self._k = 0
+        if pad_to is None:
+            self._terms = []
+        else:
+            self._terms = [jnp.zeros((pad_to, *jnp.shape(v)), jnp.result_type(v)) for v in self._f0]
+
+    def next(self, c) -> np.ndarray:
+        """Append the path coefficient ``c_k`` and return the coefficient ``f_k`` (host array)."""
+        self._k += 1
+        if self._pad_to is None:
+            fk, new = self._fn.truncated(self._x0, c, self._f0, self._terms, *self._args)
+            self._terms.append(new)
+        else:
+            if self._k > self._pad_to:
+                raise ValueError(f"AffinePath padded to {self._pad_to} terms cannot give order {self._k}")
+            fk, self._terms = self._fn.padded(self._x0, c, self._f0, self._terms, self._k, *self._args)
+        return np.asarray(fk)
+
+
+class AffineFunctions:
+    """The compiled pieces of :class:`AffinePath` for one function and one argument layout
+    (``x0`` and ``args`` are examples: shapes and pytree structure matter, not values)."""
+
+    def __init__(self, fun: Callable, x0, *args):
+        from .affine import split_affine
+
+        self.split = split = split_affine(fun, x0, *args)
+
+        def rest_coefficients(f0, terms, *args):
+            """``[rest]_1..[rest]_K`` from the frontier's ``f0`` and ``terms[k-1]`` (lists)."""
+            _, fs = jet.jet(lambda *F: split.rest(list(F), *args), tuple(f0),
+                            tuple(list(t) for t in zip(*terms)), factorial_scaled=False)
+            return fs
+
+        def new_term(x0, c, args):
+            return jax.jvp(lambda y: split.linear(y, *args), (x0,), (c,))[1]
+
+        def truncated(x0, c, f0, terms, *args):
+            new = new_term(x0, c, args)
+            fk = rest_coefficients(f0, [*terms, new], *args)[-1]
+            return jnp.broadcast_to(fk, split.out_shape), new
+
+        def padded(x0, c, f0, stacked, k, *args):
+            new = new_term(x0, c, args)
+            stacked = [s.at[k - 1].set(v) for s, v in zip(stacked, new)]
+            K = stacked[0].shape[0]
+            fs = rest_coefficients(f0, [[s[i] for s in stacked] for i in range(K)], *args)
+            fs = jnp.stack([jnp.broadcast_to(v, split.out_shape) for v in fs])
+            return fs[k - 1], stacked
+
+        self.frontier = jax.jit(split.linear)
+        self.truncated = jax.jit(truncated)
+        self.padded = jax.jit(padded)

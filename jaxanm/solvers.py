@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 
 import jax
 import numpy as np
@@ -19,7 +20,7 @@ import scipy.sparse
 from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
 from .jacobian import SparseJacobian, dense_jacobian_function
 from .linalg import Factorization, factorize
-from .series import path_coefficients
+from .series import AffineFunctions, AffinePath, path_coefficients
 from .stats import Stats
 
 
@@ -36,6 +37,58 @@ def _series_function(residual):
     feeding zeros for the coefficients not known yet, so nothing recompiles per order or step.
     """
     return jax.jit(lambda d_s, terms, *args: path_coefficients(residual, d_s, terms, *args)[1])
+
+
+_AFFINE_CACHE: dict = {}
+"""Compiled affine-split series functions per (residual, argument layout), shared by runs."""
+
+
+def _affine_functions(residual, d_s, args):
+    """The :class:`~jaxanm.series.AffineFunctions` of ``residual`` for this argument layout, or
+    None (with a warning, once per layout) when the split cannot be made; the series then comes
+    from a jet of the whole residual."""
+    leaves, tree = jax.tree_util.tree_flatten((d_s, args))
+    key = (residual, tree, tuple((np.shape(v), np.result_type(v).str) for v in leaves))
+    if key not in _AFFINE_CACHE:
+        if len(_AFFINE_CACHE) >= 16:
+            _AFFINE_CACHE.pop(next(iter(_AFFINE_CACHE)))
+        try:
+            _AFFINE_CACHE[key] = AffineFunctions(residual, d_s, *args)
+        except Exception as exc:  # noqa: BLE001 - any tracing failure: fall back, and say why
+            warnings.warn(f"the residual could not be split into its affine part and the rest ({exc!r}); "
+                          "the ANM series uses a jet of the whole residual (correct, slower)", stacklevel=4)
+            _AFFINE_CACHE[key] = None
+    return _AFFINE_CACHE[key]
+
+
+class SeriesPath:
+    """The residual's Taylor coefficients along the ANM path, one order per :meth:`next`
+    (counted in ``stats.series_orders`` and timed as ``series``).
+
+    The affine part of the residual is applied outside jet (:class:`~jaxanm.series.AffinePath`);
+    ``pad_to`` as there (None: truncated jets, one compilation per order).
+    """
+
+    def __init__(self, problem: "Problem", d_s, args: tuple, pad_to: int | None):
+        self._problem, self._d_s, self._args, self._pad_to = problem, d_s, args, pad_to
+        self._terms = []
+        with problem.stats.timer("series"):
+            fns = _affine_functions(problem._raw_residual, d_s, args)
+            self._path = None if fns is None else AffinePath(fns, d_s, args, pad_to)
+
+    def next(self, c) -> np.ndarray:
+        """Append the path coefficient ``c_k``; return the residual's coefficient ``[R]_k``."""
+        P = self._problem
+        if self._path is None:  # jet of the whole residual
+            self._terms.append(np.asarray(c))
+            k, terms = len(self._terms), np.stack(self._terms)
+            if self._pad_to is not None:
+                terms = np.concatenate([terms, np.zeros((self._pad_to - k, terms.shape[1]))])
+            return P.series(self._d_s, terms, *self._args)[k - 1]
+        with P.stats.timer("series"):
+            r = self._path.next(c)
+        P.stats.series_orders += 1
+        return r
 
 
 class Problem:
@@ -270,11 +323,11 @@ class _ANMStepper:
             coeffs = np.zeros((p, d_s.size))
             with st.timer("solve"):
                 coeffs[0] = -self.fact.solve(r0)
+            # order j - 1 of the residual needs c_1 .. c_{j-1} only: the adaptive mode truncates
+            # each jet there; the fixed order compiles one jet for all orders (zeros padded)
+            path = SeriesPath(P, d_s, (x_old, t, dt, params), pad_to=None if self.opts.adaptive else p - 1)
             for j in range(2, p + 1):
-                if self.opts.adaptive:  # order j - 1 of the path needs c_1 .. c_{j-1} only
-                    rj = P.series(d_s, coeffs[: j - 1], x_old, t, dt, params)[-1]
-                else:  # one compiled jet for every order, zeros for the unknown terms
-                    rj = P.series(d_s, coeffs[: p - 1], x_old, t, dt, params)[j - 2]
+                rj = path.next(coeffs[j - 2])
                 with st.timer("solve"):
                     coeffs[j - 1] = coeffs[j - 2] - self.fact.solve(rj)
                 if self.opts.adaptive and j < p:

@@ -1,0 +1,147 @@
+"""Split a function ``f(x, *args)`` into its part affine in ``x`` and the rest, from its jaxpr.
+
+A meshless residual is mostly linear maps of the unknowns (stencil gathers times constant
+weights, sums) feeding a few pointwise nonlinear terms.  Along a path ``x(a) = x_0 + sum a^k
+c_k`` the Taylor coefficients of an affine intermediate ``v = A x + b`` are ``A c_k``: they need
+no series arithmetic, one linear map per new coefficient.  ``jet`` does not know that: it
+multiplies a constant weight by a field series with zeros instantiated for the weight's
+terms (``jax/experimental/jet.py``, ``process_primitive``), O(K^2) products of the widest
+arrays of the residual.  :func:`split_affine` finds the *frontier*: the affine intermediates
+that a non-affine operation (or the output) consumes.  Then
+
+- ``linear(x, *args)`` returns the frontier values (the affine part, evaluated as is), and
+- ``rest(frontier, *args)`` the outputs from the frontier values (the non-affine part),
+
+with ``f(x, *args) == rest(linear(x, *args), *args)``.  The classification is conservative:
+an operation is affine in ``x`` only if it is on the whitelist below with every ``x``-dependent
+operand affine and every other operand independent of ``x``; anything else (including nested
+calls that were not inlined) is "rest", which is always correct, only slower.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax
+from jax import lax
+from jax.extend import core as jex_core
+
+# Linear in all operands jointly (jet's own ``deflinear`` list, restricted to real arithmetic).
+_LINEAR = {lax.neg_p, lax.add_p, lax.sub_p, lax.convert_element_type_p, lax.broadcast_in_dim_p,
+           lax.concatenate_p, lax.pad_p, lax.reshape_p, lax.squeeze_p, lax.rev_p, lax.transpose_p,
+           lax.slice_p, lax.reduce_sum_p, lax.copy_p, lax.cumsum_p, lax.split_p}
+# Bilinear: affine when exactly one operand depends on x.
+_BILINEAR = {lax.mul_p, lax.dot_general_p}
+
+
+class AffineSplit(NamedTuple):
+    """``f = rest(linear(x, *args), *args)``; ``n_frontier`` values pass between the two;
+    ``out_shape`` is the shape of f's (single array) output."""
+
+    linear: Callable
+    rest: Callable
+    n_frontier: int
+    n_affine_eqns: int
+    n_rest_eqns: int
+    out_shape: tuple
+
+
+def _affine(eqn, dep: list, aff: list) -> bool:
+    """Whether ``eqn``'s outputs are affine in x, given which inputs depend on x (``dep``) and
+    which of those are affine (``aff``)."""
+    p = eqn.primitive
+    if any(d and not a for d, a in zip(dep, aff)):
+        return False
+    if p in _LINEAR:
+        return True
+    if p in _BILINEAR:
+        return sum(dep) == 1
+    if p is lax.div_p:  # x / const
+        return dep[0] and not dep[1]
+    if p is lax.gather_p:  # operand[const indices]
+        return not dep[1]
+    if p is lax.scatter_add_p:  # indices const
+        return not dep[1]
+    if p is lax.select_n_p:  # const predicate chooses between affine cases
+        return not dep[0]
+    return False
+
+
+def split_affine(fun: Callable, x, *args) -> AffineSplit:
+    """Trace ``fun(x, *args)`` (nested ``jit`` calls inlined) and split it at the affine frontier.
+
+    ``args`` are example values (shapes and dtypes matter, values do not); the returned
+    functions take ``(x, *args)`` and ``(frontier, *args)`` with ``args`` of the same structure.
+    """
+    flat_args, tree = jax.tree_util.tree_flatten(args)
+
+    def flat_fun(x, *flat):
+        return fun(x, *jax.tree_util.tree_unflatten(tree, flat))
+
+    with jax.disable_jit():  # inline jnp's internal jit calls, so that their insides are classified
+        closed = jax.make_jaxpr(flat_fun)(x, *flat_args)
+    jaxpr, consts = closed.jaxpr, closed.consts
+    if len(jaxpr.outvars) != 1:
+        raise ValueError(f"split_affine needs a function with one array output, got {len(jaxpr.outvars)}")
+    depends = {jaxpr.invars[0]}
+    affine = {jaxpr.invars[0]}
+    kinds = []
+    for eqn in jaxpr.eqns:
+        ins = [v for v in eqn.invars]
+        dep = [isinstance(v, jex_core.Var) and v in depends for v in ins]
+        if not any(dep):
+            kinds.append("const")
+            continue
+        aff = [isinstance(v, jex_core.Var) and v in affine for v in ins]
+        is_affine = _affine(eqn, dep, aff)
+        kinds.append("affine" if is_affine else "rest")
+        depends.update(eqn.outvars)
+        if is_affine:
+            affine.update(eqn.outvars)
+    frontier, seen = [], set()
+
+    def mark(v):
+        if isinstance(v, jex_core.Var) and v in affine and v not in seen:
+            seen.add(v)
+            frontier.append(v)
+
+    for eqn, kind in zip(jaxpr.eqns, kinds):
+        if kind == "rest":
+            for v in eqn.invars:
+                mark(v)
+    for v in jaxpr.outvars:
+        mark(v)
+
+    def evaluate(env, eqns):
+        for eqn in eqns:
+            vals = [v.val if isinstance(v, jex_core.Literal) else env[v] for v in eqn.invars]
+            out = eqn.primitive.bind(*vals, **eqn.params)
+            for var, val in zip(eqn.outvars, out if eqn.primitive.multiple_results else [out]):
+                env[var] = val
+
+    def start_env(x_or_none, flat):
+        env = dict(zip(jaxpr.constvars, consts))
+        env.update(zip(jaxpr.invars[1:], flat))
+        if x_or_none is not None:
+            env[jaxpr.invars[0]] = x_or_none
+        return env
+
+    first_part = [e for e, k in zip(jaxpr.eqns, kinds) if k in ("const", "affine")]
+    second_part = [e for e, k in zip(jaxpr.eqns, kinds) if k in ("const", "rest")]
+
+    def linear(x, *args):
+        """Frontier values: the affine intermediates that the non-affine part consumes."""
+        env = start_env(x, jax.tree_util.tree_leaves(args))
+        evaluate(env, first_part)
+        return [env[v] for v in frontier]
+
+    def rest(values, *args):
+        """Outputs of ``fun`` from the frontier values (the non-affine part)."""
+        env = start_env(None, jax.tree_util.tree_leaves(args))
+        env.update(zip(frontier, values))
+        evaluate(env, second_part)
+        out = jaxpr.outvars[0]
+        return out.val if isinstance(out, jex_core.Literal) else env[out]
+
+    return AffineSplit(linear, rest, len(frontier), kinds.count("affine"), kinds.count("rest"),
+                       tuple(closed.out_avals[0].shape))
