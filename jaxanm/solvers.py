@@ -48,7 +48,7 @@ def _affine_functions(residual, d_s, args):
     None (with a warning, once per layout) when the split cannot be made; the series then comes
     from a jet of the whole residual."""
     leaves, tree = jax.tree_util.tree_flatten((d_s, args))
-    key = (residual, tree, tuple((np.shape(v), np.result_type(v).str) for v in leaves))
+    key = (residual, tree, tuple((np.shape(v), str(getattr(v, "dtype", type(v).__name__))) for v in leaves))
     if key not in _AFFINE_CACHE:
         if len(_AFFINE_CACHE) >= 16:
             _AFFINE_CACHE.pop(next(iter(_AFFINE_CACHE)))

@@ -167,7 +167,15 @@ def _as_strs(field: str, value) -> tuple:
     return tuple(_as_str(f"{field}[{i}]", v) for i, v in enumerate(value))
 
 
-_CONVERTERS = {"float": _as_float, "int": _as_int, "str": _as_str,
+def _as_bool(field: str, value) -> bool:
+    """A bool from a bool (or, for overrides, ``true``/``false``)."""
+    if isinstance(value, str) and value.strip().lower() in ("true", "false"):
+        value = value.strip().lower() == "true"
+    _check(field, value, isinstance(value, bool), "expected true or false")
+    return value
+
+
+_CONVERTERS = {"float": _as_float, "int": _as_int, "str": _as_str, "bool": _as_bool,
                "tuple[float, ...]": _as_floats, "tuple[str, ...]": _as_strs}
 
 
@@ -344,8 +352,8 @@ class Time(_Section):
 @dataclasses.dataclass(frozen=True)
 class SolverSpec(_Section):
     """Nonlinear step solver: ``kind`` in ``anm | newton | modified_newton``, ``tol``; ANM ``order``,
-    ``criterion`` (``increment``: the paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`) and
-    ``max_substeps``."""
+    ``criterion`` (``increment``: the paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`),
+    ``max_substeps`` and ``adaptive`` (order-adaptive series, ``order`` the maximum)."""
 
     _name = "solver"
     kind: str = "anm"
@@ -353,6 +361,7 @@ class SolverSpec(_Section):
     tol: float = 1e-6
     criterion: str = "increment"
     max_substeps: int = 50
+    adaptive: bool = False
 
     def _validate(self):
         _check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
@@ -370,7 +379,7 @@ class SolverSpec(_Section):
 
         if self.kind == "anm":
             return jaxanm.ANM(order=self.order, tol=self.tol, criterion=self.criterion,
-                              max_substeps=self.max_substeps)
+                              max_substeps=self.max_substeps, adaptive=self.adaptive)
         if self.kind == "newton":
             return jaxanm.Newton(tol=self.tol)
         return jaxanm.ModifiedNewton(tol=self.tol)
