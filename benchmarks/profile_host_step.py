@@ -1,0 +1,179 @@
+"""Profile of the host work of one Lagrangian ``fsw_paper`` step (issue 14, item 1).
+
+The host work is :meth:`jaxanm.fsw.simulate._Recorder.after_step`: field values at the points,
+probes, moving the points, the shear test, the stencil rebuild and the refit of the state.
+This script
+
+1. builds ``fsw_paper`` and runs ``--warm`` Newton steps with the run's own recorder as the
+   ``after_step`` hook (a developed flow: the points move as in a run);
+2. times each part of one host step separately on that state, and the whole hook, as medians
+   over ``--repeats`` calls (each on a copy of the recorder, so every call is the same step);
+3. prints a table and writes ``docs/profile_host_step.json`` (one entry per ``--label``, earlier
+   labels kept) and ``docs/profile_host_step.md`` (every label side by side).
+
+    python benchmarks/profile_host_step.py --label before
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import datetime
+import json
+import os
+import pathlib
+import time
+
+import numpy as np
+
+import jaxanm
+from jaxanm import mls
+from jaxanm.fsw import discretise, load_scene
+from jaxanm.fsw import simulate as sim
+from jaxanm.fsw.geometry import _apart
+
+DOCS = pathlib.Path(__file__).resolve().parent.parent / "docs"
+
+
+def warm_state(steps: int = 3, scene_name: str = "fsw_paper"):
+    """Scene, model, recorder and the state after ``steps`` Newton steps of a Lagrangian run.
+
+    Returns ``(scene, model, recorder, t, x, params)``: ``x`` is the last accepted state as the
+    solver returned it, *before* its ``after_step`` (the recorder is one step behind: its points
+    are those ``x`` was solved on), ``params`` the residual parameters on those points.
+    """
+    scene = load_scene(scene_name)
+    _, stencils, model, params, x0 = discretise(scene)
+    dt = scene.time.dt
+    recorder = sim._Recorder(scene, model, stencils, x0, set())
+    # keep the recorder and params as they were before the last hook call
+    last = {}
+
+    def hook(t_new, x_new, p):
+        last.update(recorder=copy.deepcopy(recorder), t=float(t_new), x=np.asarray(x_new), params=p)
+        return recorder.after_step(t_new, x_new, p)
+
+    jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=steps * dt, dt=dt,
+                     solver=jaxanm.Newton(tol=1e-6), scale=model.scale(), jacobian="sparse",
+                     sparsity=model.sparsity, after_step=hook)
+    return scene, model, last["recorder"], last["t"], last["x"], last["params"]
+
+
+def median_ms(fn, repeats: int, setup=None) -> float:
+    """Median wall time of ``fn(setup())`` in ms over ``repeats`` calls (setup not timed)."""
+    times = []
+    for _ in range(repeats):
+        arg = setup() if setup is not None else None
+        t = time.perf_counter()
+        fn(arg)
+        times.append(time.perf_counter() - t)
+    return 1e3 * float(np.median(times))
+
+
+def profile(recorder, t, x, params, repeats: int) -> dict:
+    """Median ms per part of one host step, and of the whole ``after_step`` hook."""
+    model, scene = recorder.model, recorder.scene
+    g = scene.geometry
+    kind, omega = model.cloud.kind, scene.tool.omega
+    dt = t - recorder.t
+    st = params["st"]
+    values = model.values(x, st)
+    full = sim._full_values(model, values)
+    moved = sim._move(recorder.points, kind, sim._velocity(full), omega, dt)
+    new_st = sim.build_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width)
+    fresh = lambda: copy.deepcopy(recorder)  # noqa: E731 - every timed call sees the same step
+    parts = {}
+    parts["values (model.values)"] = median_ms(lambda _: model.values(x, st), repeats)
+    parts["full values"] = median_ms(lambda _: sim._full_values(model, values), repeats)
+    parts["record probes"] = median_ms(lambda r: r._record(t, moved, full, False), repeats, fresh)
+    parts["move"] = median_ms(lambda _: sim._move(recorder.points, kind, sim._velocity(full), omega, dt), repeats)
+    parts["shear test"] = median_ms(lambda r: r._sheared(np.asarray(st.index)), repeats, fresh)
+    parts["stencils (total)"] = median_ms(
+        lambda _: sim.build_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width), repeats)
+    # the stencil rebuild's two halves: neighbour search, MLS kernel (how mls._stencils calls them)
+    apart = _apart(moved, model.cloud.n_tool, g)
+    h = np.full(len(apart), g.h_factor * g.dr)
+    m = recorder.width
+    parts["  neighbour search (cKDTree)"] = median_ms(
+        lambda _: sim.cKDTree(apart).query(apart, k=m, distance_upper_bound=float(np.nextafter(h.max(), np.inf))),
+        repeats)
+    if hasattr(recorder, "neighbours"):  # the run's candidate lists, as the hook uses them
+        parts["  neighbour search (candidate lists)"] = median_ms(lambda r: r.neighbours.query(apart, h, m),
+                                                                 repeats, fresh)
+    index = np.asarray(new_st.index)
+    mask = np.asarray(new_st.phi) != 0
+    local = (apart[index] - apart[:, None, :]) / h[:, None, None]
+    parts["  MLS kernel (_run_kernel)"] = median_ms(lambda _: mls._run_kernel(local, mask, h, float(g.c), int(g.q)),
+                                                    repeats)
+    parts["params"] = median_ms(lambda _: model.params(moved, new_st), repeats)
+    parts["refit (fit_state, new splu)"] = median_ms(lambda _: model.fit_state(values, new_st), repeats)
+    if hasattr(recorder, "refit"):  # preconditioned by the previous step's factorisation, as the hook does
+        parts["refit (fit_state, iterative)"] = median_ms(lambda r: model.fit_state(values, new_st, r.refit),
+                                                          repeats, fresh)
+    parts["  value matrix"] = median_ms(lambda _: mls.value_matrix(new_st), repeats)
+    vm = mls.value_matrix(new_st)
+    parts["  splu of the value matrix"] = median_ms(lambda _: jaxanm.linalg.sparse_lu(vm), repeats)
+    parts["after_step (whole hook)"] = median_ms(lambda r: r.after_step(t, x, params), repeats, fresh)
+    return parts
+
+
+def write(label: str, parts: dict, meta: dict) -> None:
+    """Merge this label into docs/profile_host_step.json and rewrite the markdown table."""
+    path = DOCS / "profile_host_step.json"
+    data = json.loads(path.read_text()) if path.is_file() else {}
+    data[label] = {"parts_ms": parts, **meta}
+    path.write_text(json.dumps(data, indent=1) + "\n")
+    labels = list(data)
+    names = list(dict.fromkeys(k for lab in labels for k in data[lab]["parts_ms"]))
+    lines = ["# Host work of one Lagrangian fsw_paper step",
+             "",
+             "Made by `python benchmarks/profile_host_step.py --label LABEL` (issue 14, item 1): "
+             "median ms per part over the repeats, one step of a developed flow (3 Newton steps "
+             "from rest), each call on the same state; indented rows are parts of the row above. "
+             "Load average (1 min) when measured is given per label.",
+             "",
+             "| part | " + " | ".join(labels) + " |",
+             "| --- | " + " | ".join("---:" for _ in labels) + " |"]
+    for name in names:
+        cells = [data[lab]["parts_ms"].get(name) for lab in labels]
+        lines.append(f"| {name.replace('  ', '&nbsp;&nbsp;')} | "
+                     + " | ".join("" if c is None else f"{c:.2f}" for c in cells) + " |")
+    lines += ["", "| label | date | load average | repeats | commit |", "| --- | --- | --- | ---: | --- |"]
+    for lab in labels:
+        d = data[lab]
+        lines.append(f"| {lab} | {d['date']} | {d['loadavg']} | {d['repeats']} | {d.get('commit', '')} |")
+    notes = [data[lab].get("note") for lab in labels if data[lab].get("note")]
+    if notes:
+        lines += [""] + [f"- {lab}: {data[lab]['note']}" for lab in labels if data[lab].get("note")]
+    (DOCS / "profile_host_step.md").write_text("\n".join(lines) + "\n")
+
+
+def main() -> None:
+    """Command line: ``--label``, ``--repeats``, ``--warm``, ``--note``, ``--no-write``."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--label", default="current")
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--warm", type=int, default=3, help="Newton steps before the profiled one")
+    ap.add_argument("--note", default="")
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+    with jaxanm.float64():
+        _, _, recorder, t, x, params = warm_state(args.warm)
+        for _ in range(3):  # compile and warm every code path once
+            copy.deepcopy(recorder).after_step(t, x, params)
+        load_before = os.getloadavg()
+        parts = profile(recorder, t, x, params, args.repeats)
+        load_after = os.getloadavg()
+    width = max(map(len, parts))
+    for name, ms in parts.items():
+        print(f"{name:<{width}}  {ms:8.3f} ms")
+    load = f"{load_before[0]:.2f} -> {load_after[0]:.2f}"
+    print(f"load average (1 min): {load}")
+    if not args.no_write:
+        commit = os.popen("git -C " + str(DOCS.parent) + " rev-parse --short HEAD").read().strip()
+        write(args.label, parts, {"date": datetime.date.today().isoformat(), "loadavg": load,
+                                  "repeats": args.repeats, "commit": commit, "note": args.note})
+
+
+if __name__ == "__main__":
+    main()
