@@ -28,7 +28,7 @@ from .. import mls
 from .._x64 import entry_point
 from .scene import Geometry
 
-__all__ = ["Cloud", "build_cloud", "build_stencils", "evaluate_stencils",
+__all__ = ["Cloud", "build_cloud", "build_stencils", "evaluate_stencils", "neighbour_list",
            "TOOL", "TOOL_EDGE", "PLATE_EDGE", "PLATE", "RING"]
 
 TOOL, TOOL_EDGE, PLATE_EDGE, PLATE, RING = range(5)
@@ -127,13 +127,26 @@ def _shift(g: Geometry) -> float:
 
 
 @entry_point
-def build_stencils(points: np.ndarray, n_tool: int, g: Geometry, m_max: int | None = None) -> mls.Stencils:
+def build_stencils(points: np.ndarray, n_tool: int, g: Geometry, m_max: int | None = None,
+                   neighbours: mls.NeighbourList | None = None) -> mls.Stencils:
     """MLS stencils of the cloud: tool ``[0, n_tool)`` and plate nodes never share a stencil.
 
     ``m_max`` fixes the stencil width (pass ``st.index.shape[1]`` of the first build when
-    rebuilding a moved cloud, so that shapes, and compiled code, stay the same).
+    rebuilding a moved cloud, so that shapes, and compiled code, stay the same);
+    ``neighbours`` (from :func:`neighbour_list`) carries the neighbour candidates from one
+    rebuild of a moving cloud to the next.
     """
-    return mls.build_stencils(_apart(points, n_tool, g), g.h_factor * g.dr, m_max=m_max, c=g.c, q=g.q)
+    return mls.build_stencils(_apart(points, n_tool, g), g.h_factor * g.dr, m_max=m_max, c=g.c, q=g.q,
+                              neighbours=neighbours)
+
+
+def neighbour_list(g: Geometry) -> mls.NeighbourList:
+    """Neighbour candidates for rebuilding the stencils of a moving cloud (:func:`build_stencils`).
+
+    Skin h / 4: the lists hold about 1.6 times the stencil's neighbours, and are remade once
+    some point has moved h / 8 (about 47 steps of the tool edge's rigid turn in fsw_paper).
+    """
+    return mls.NeighbourList(skin=0.25 * g.h_factor * g.dr)
 
 
 @entry_point

@@ -32,8 +32,9 @@ from scipy.spatial import cKDTree
 
 import jaxanm
 
-from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_stencils, evaluate_stencils
-from .model import Model, discretise
+from .geometry import (PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_stencils, evaluate_stencils,
+                       neighbour_list)
+from .model import Model, Refit, discretise
 from .scene import Scene
 
 __all__ = ["FSWResult", "run"]
@@ -139,6 +140,10 @@ class _Recorder:
         self.markers = None
         self.rezone_times = []
         self.seeded_spacing = _nearest_spacing(self.points[cloud.n_tool:])
+        # Lagrangian rebuilds: neighbour candidates and the refit's factorisation, carried
+        # from step to step (and through checkpoints)
+        self.neighbours = neighbour_list(scene.geometry)
+        self.refit = Refit()
         self._save_sections(x0)
         self._record(0.0, self.points, _full_values(model, model.initial_values(self.points)), save=True)
 
@@ -190,13 +195,25 @@ class _Recorder:
             out[k][free] = at_markers[k][free]
         return out
 
-    def _sheared(self) -> bool:
+    def _sheared(self, index: np.ndarray | None = None) -> bool:
         """Whether some plate point is closer to its nearest neighbour than ``rezone`` times
-        its distance at the last seeding (never without ``geometry.rezone``)."""
+        its distance at the last seeding (never without ``geometry.rezone``).
+
+        ``index``: the stencils' neighbour indices on the current points, if on hand (nearest
+        first, so ``index[i, 1]`` is the point nearest to i; plate stencils hold only plate
+        points): the same nearest distances as a cKDTree of the plate points, without
+        building one.  Without it, that cKDTree.
+        """
         fraction = self.scene.geometry.rezone
         if fraction <= 0:
             return False
-        spacing = _nearest_spacing(self.points[self.model.cloud.n_tool:])
+        n_tool = self.model.cloud.n_tool
+        if index is None:
+            spacing = _nearest_spacing(self.points[n_tool:])
+        else:
+            plate = np.arange(n_tool, self.points.shape[0])
+            d = self.points[index[plate, 1]] - self.points[plate]
+            spacing = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
         return bool(np.any(spacing < fraction * self.seeded_spacing))
 
     def _rezone(self, x, values: np.ndarray) -> np.ndarray:
@@ -245,15 +262,16 @@ class _Recorder:
             at = self._values_at(x, self.markers)
             material_values = self._marker_values(full, at)
             material = self.markers = _move(self.markers, kind, _velocity(at), omega, dt)
-        if self._sheared():
+        if self._sheared(np.asarray(params["st"].index)):
             if self.markers is None:  # the material points go on from where the nodes were
                 self.markers = material
             values = self._rezone(x, values)
             full = _full_values(model, values)
         self.points = _move(self.points, kind, _velocity(full), omega, dt)
         self._record(self.t, material, material_values, save)
-        st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width)
-        return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st))
+        st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width,
+                            neighbours=self.neighbours)
+        return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st, self.refit))
 
     def result(self, solver, stats) -> FSWResult:
         """Assemble the :class:`FSWResult`."""

@@ -1,0 +1,135 @@
+"""The Lagrangian host step's shortcuts give what the direct computations give (issue 14, item 1)."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+import jaxanm
+from jaxanm import mls
+from jaxanm.fsw import discretise, load_scene
+from jaxanm.fsw.geometry import PLATE, _apart, build_stencils, neighbour_list
+from jaxanm.fsw.model import Refit
+from jaxanm.fsw.simulate import _Recorder, _rotate
+
+
+def _scene():
+    return load_scene("fsw_small")
+
+
+def _sheared_cloud(cloud, dr, seed=0, amount=0.2, angle=0.3):
+    rng = np.random.default_rng(seed)
+    pts = cloud.points.copy()
+    free = cloud.kind == PLATE
+    pts[free] += amount * dr * rng.uniform(-1, 1, (free.sum(), 2))
+    pts[: cloud.n_tool] = _rotate(pts[: cloud.n_tool], angle)
+    return pts
+
+
+def _neighbour_sets(dist, idx, h):
+    return [frozenset(i[d <= h]) for d, i in zip(dist, idx)]
+
+
+def test_neighbour_list_finds_the_kdtree_neighbours_of_a_moving_cloud():
+    """Sets and sorted distances as cKDTree's, over small moves (no rebuild) and a big one
+    (rebuild), including the polar tool ring at exactly h from the centre as the tool turns."""
+    scene = _scene()
+    g = scene.geometry
+    cloud, *_ = discretise(scene)
+    nl = neighbour_list(g)
+    h = np.full(cloud.size, g.h_factor * g.dr)
+    bound = float(np.nextafter(h.max(), np.inf))
+    pts = cloud.points.copy()
+    rng = np.random.default_rng(1)
+    for step in range(40):
+        pts[: cloud.n_tool] = _rotate(pts[: cloud.n_tool], 2e-3)
+        pts[cloud.n_tool:] += 1e-3 * g.dr * rng.uniform(-1, 1, (cloud.size - cloud.n_tool, 2))
+        if step == 30:
+            pts = _sheared_cloud(cloud, g.dr, seed=step)  # far: the lists must be remade
+        a = _apart(pts, cloud.n_tool, g)
+        d_ref, i_ref = cKDTree(a).query(a, k=32, distance_upper_bound=bound)
+        d, i = nl.query(a, h, 32)
+        assert _neighbour_sets(d, i, h[0]) == _neighbour_sets(d_ref, i_ref, h[0])
+        np.testing.assert_array_equal(d, d_ref)
+        assert np.all(i[:, 0] == np.arange(cloud.size))  # itself first
+    assert nl.rebuilds == 2
+
+
+def test_stencils_with_the_neighbour_list_match_a_fresh_build():
+    scene = _scene()
+    g = scene.geometry
+    cloud, st0, *_ = discretise(scene)
+    m = st0.index.shape[1]
+    nl = neighbour_list(g)
+    build_stencils(cloud.points, cloud.n_tool, g, m_max=m, neighbours=nl)
+    pts = _sheared_cloud(cloud, g.dr, amount=0.05, angle=0.01)
+    ref = build_stencils(pts, cloud.n_tool, g, m_max=m)
+    new = build_stencils(pts, cloud.n_tool, g, m_max=m, neighbours=nl)
+    assert nl.rebuilds == 1
+    f = np.random.default_rng(2).standard_normal(cloud.size)
+    for op in (mls.value, mls.laplacian):
+        a, b = np.asarray(op(ref, f)), np.asarray(op(new, f))
+        assert np.abs(a - b).max() <= 1e-12 * np.abs(a).max()
+
+
+def test_refit_iterations_give_the_direct_fit_and_pickle_exactly():
+    scene = _scene()
+    g = scene.geometry
+    cloud, st0, model, _, _ = discretise(scene)
+    m = st0.index.shape[1]
+    values = np.random.default_rng(4).standard_normal((cloud.size, len(model.fields))) + [0.0, 0.0, 300.0]
+    refit = Refit()
+    model.fit_state(values, st0, refit)
+    assert refit.iterations == [0] and refit.factorizations == 1
+    pts = cloud.points.copy()
+    for k in range(3):
+        pts = _sheared_cloud(cloud, g.dr, seed=k, amount=0.01 * (k + 1), angle=2e-3 * (k + 1))
+        st = build_stencils(pts, cloud.n_tool, g, m_max=m)
+        direct = model.fit_state(values, st)
+        x = model.fit_state(values, st, refit)
+        X, D = x.reshape(len(model.fields), -1), direct.reshape(len(model.fields), -1)
+        assert np.all(np.abs(X - D).max(axis=1) <= 1e-14 * np.abs(D).max(axis=1))
+    assert all(it > 0 for it in refit.iterations[1:])
+    copy = pickle.loads(pickle.dumps(refit))
+    st = build_stencils(_sheared_cloud(cloud, g.dr, seed=9, amount=0.04), cloud.n_tool, g, m_max=m)
+    np.testing.assert_array_equal(model.fit_state(values, st, copy), model.fit_state(values, st, refit))
+
+
+def test_shear_test_from_the_stencils_agrees_with_the_kdtree():
+    scene = load_scene("fsw_small").with_overrides({"geometry.rezone": "0.9"})
+    cloud, stencils, model, _, x0 = discretise(scene)
+    rec = _Recorder(scene, model, stencils, x0, save_steps=set())
+    for amount in (0.02, 0.3):
+        rec.points = _sheared_cloud(cloud, scene.geometry.dr, amount=amount)
+        st = build_stencils(rec.points, cloud.n_tool, scene.geometry, m_max=rec.width)
+        assert rec._sheared(np.asarray(st.index)) == rec._sheared()
+    assert rec._sheared()  # 0.3 dr of shear is too much
+
+
+def test_values_on_the_host_match_the_mls_gathers():
+    scene = _scene()
+    cloud, st, model, _, _ = discretise(scene)
+    x = np.random.default_rng(5).standard_normal(model.size)
+    got = model.values(x, st)
+    for j, f in enumerate(x.reshape(len(model.fields), -1)):
+        with jaxanm.float64():
+            ref = np.asarray(mls.value(st, f))
+        assert np.abs(got[:, j] - ref).max() <= 1e-14 * np.abs(ref).max()
+
+
+def test_condition_screen_is_a_lower_bound_exact_where_it_decides():
+    rng = np.random.default_rng(6)
+    B = rng.standard_normal((50, 6, 8))
+    A = B @ B.transpose(0, 2, 1)
+    A[:5, :, 0] *= 1e-7  # nearly singular: below the screen, computed exactly
+    A[:5, 0, :] *= 1e-7
+    s = 1 / np.sqrt(np.einsum("nii->ni", A))
+    A = A * s[:, :, None] * s[:, None, :]
+    exact = mls._reciprocal_condition(A)
+    screen = mls._condition_screen(A)
+    assert np.all(screen <= exact * (1 + 1e-12))
+    low = exact < 1e3 * mls.RCOND_MIN
+    np.testing.assert_array_equal(screen[low], exact[low])
+    assert np.array_equal(screen >= mls.RCOND_MIN, exact >= mls.RCOND_MIN)
