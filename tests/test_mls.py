@@ -100,14 +100,43 @@ def test_quadratic_fields_reproduced(clouds, cloud):
             assert err.max() <= bound * scale, (cloud, name)
 
 
+def reciprocal_condition(points, st, c=0.2):
+    """rcond of each point's equilibrated moment matrix at xi = 0, recomputed in numpy from the
+    stencil's nodes (independent of the kernel): quadratic basis, Gaussian weight exp(-r^2/c^2)
+    on r <= h, padding (repeats of the point's own index after the first entry) excluded."""
+    index = np.asarray(st.index)
+    local = (points[index] - points[:, None, :]) / H
+    real = np.ones(index.shape, dtype=bool)
+    real[:, 1:] = index[:, 1:] != np.arange(len(points))[:, None]
+    r2 = (local**2).sum(-1)
+    w = np.where(real & (r2 <= 1.0), np.exp(-r2 / c**2), 0.0)
+    x, y = local[..., 0], local[..., 1]
+    P = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
+    A = np.einsum("nmi,nm,nmj->nij", P, w, P)
+    s = 1.0 / np.sqrt(np.einsum("nii->ni", A))
+    eig = np.linalg.eigvalsh(A * s[:, :, None] * s[:, None, :])
+    return eig[:, 0] / eig[:, -1]
+
+
+# Partition of unity holds exactly; in floating point the weights carry the error of the 6x6
+# moment solve.  Gaussian elimination on the equilibrated SPD matrix has a forward error of at
+# most about 3 n eps / rcond relative (n = 6 basis functions: 18 eps / rcond), and the second
+# derivative weights come from differentiating that solve twice, each derivative solve adding
+# an error of the same size: 2 x 18 = 36 eps / rcond, relative to sum |w| (the terms summed).
+# Edge points with one-sided supports have rcond down to 1e-6 (mls.RCOND_MIN's note), where a
+# fixed bound of 1e-10 failed on a CPU without AVX-512 (issue 13: 2.8e-2 against 2.3e-2).
+SOLVE_ERROR = 36 * np.finfo(np.float64).eps
+
+
 @pytest.mark.parametrize("cloud", ["regular", "jittered"])
 def test_partition_of_unity(clouds, cloud):
-    _, st = clouds[cloud]
-    assert np.abs(np.asarray(st.phi).sum(1) - 1.0).max() <= 1e-10
+    points, st = clouds[cloud]
+    bound = SOLVE_ERROR / reciprocal_condition(points, st)
+    phi = np.asarray(st.phi)
+    assert np.all(np.abs(phi.sum(1) - 1.0) <= bound * np.abs(phi).sum(1)), cloud
     for name in NAMES[1:]:
         w = np.asarray(getattr(st, name))
-        # Relative to the size of the terms summed (derivative weights scale as 1/h, 1/h^2).
-        assert np.all(np.abs(w.sum(1)) <= 1e-10 * np.abs(w).sum(1)), (cloud, name)
+        assert np.all(np.abs(w.sum(1)) <= bound * np.abs(w).sum(1)), (cloud, name)
 
 
 def test_padding_is_own_index_with_zero_weights(clouds):
