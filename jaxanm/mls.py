@@ -191,14 +191,34 @@ def _kernel(local, mask, h, c, q):
             hess[..., 0, 0] / h2, hess[..., 0, 1] / h2, hess[..., 1, 1] / h2, moments, finite)
 
 
-def _run_kernel(local, mask, h, c, q):
+def _value_row(nodes, mask, c, q):
+    """Shape function values at ``xi = 0`` (m,) and the equilibrated moment matrix (6, 6).
+
+    The primal part of :func:`_stencil_row` (the same calls, hence the same values, measured
+    bit-identical), without the forward-mode derivatives that cost 10x as much.
+    """
+    xi0 = jnp.zeros(2, dtype=nodes.dtype)
+    A0, _ = _moments(xi0, nodes, mask, c, q)
+    s = _equilibration(A0)
+    return _shape_functions(xi0, nodes, mask, c, q, s), A0 * s[:, None] * s[None, :]
+
+
+@functools.partial(jax.jit, static_argnames=("q",))
+def _value_kernel(local, mask, h, c, q):
+    """Value-only counterpart of :func:`_kernel`: ``(phi, moments, finite)`` for n stencils."""
+    phi, moments = jax.vmap(_value_row, in_axes=(0, 0, None, None))(local, mask, c, q)
+    return phi, moments, jnp.isfinite(phi).all(1)
+
+
+def _run_kernel(local, mask, h, c, q, derivatives=True):
     """Run :func:`_kernel` on fixed-size chunks of evaluation points; numpy results.
 
     Chunks keep the working set in cache and make the compiled shape independent of N: one
     compilation per (m, q).  The last chunk is padded with copies of the first stencil.  The
     numpy chunks go to the jitted kernel as they are (no separate ``jnp.asarray`` dispatches),
     and every chunk is dispatched before any result is read, so the host never waits between
-    chunks.
+    chunks.  Without ``derivatives``, :func:`_value_kernel` runs instead and the five
+    derivative arrays are None.
     """
     n = local.shape[0]
     n_pad = -(-n // CHUNK) * CHUNK
@@ -207,9 +227,11 @@ def _run_kernel(local, mask, h, c, q):
         return np.concatenate([a, np.repeat(a[:1], n_pad - n, axis=0)])
 
     local, mask, h = padded(local), padded(mask), padded(h)
-    chunks = [_kernel(local[i:i + CHUNK], mask[i:i + CHUNK], h[i:i + CHUNK], c, q)
+    kernel = _kernel if derivatives else _value_kernel
+    chunks = [kernel(local[i:i + CHUNK], mask[i:i + CHUNK], h[i:i + CHUNK], c, q)
               for i in range(0, n_pad, CHUNK)]
-    return [np.concatenate([np.asarray(out[k]) for out in chunks])[:n] for k in range(8)]
+    out = [np.concatenate([np.asarray(res[k]) for res in chunks])[:n] for k in range(len(chunks[0]))]
+    return out if derivatives else [out[0], None, None, None, None, None, out[1], out[2]]
 
 
 def _as_cloud(name, points):
@@ -360,13 +382,14 @@ class NeighbourList:
         return dist, idx
 
 
-def _stencils(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None):
+def _stencils(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None, derivatives=True):
     """Shared code path of :func:`build_stencils` and :func:`evaluate_at`.
 
     ``same_cloud``: the evaluation points are the nodes themselves (``centers is nodes``);
     padding then repeats each point's own index and coinciding points are rejected.  Otherwise
     padding repeats the index of the nearest node.  ``neighbours``: a :class:`NeighbourList`
-    to search instead of a new cKDTree (same cloud and a given ``m_max`` only).
+    to search instead of a new cKDTree (same cloud and a given ``m_max`` only).  Without
+    ``derivatives`` only ``phi`` is computed (the derivative fields are None).
     """
     _check_weight(c, q)
     _check_m_max(m_max)
@@ -404,7 +427,7 @@ def _stencils(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None
             )
 
     local = (nodes[index] - centers[:, None, :]) / h[:, None, None]
-    phi, dx, dy, dxx, dxy, dyy, moments, finite = _run_kernel(local, mask, h, float(c), int(q))
+    phi, dx, dy, dxx, dxy, dyy, moments, finite = _run_kernel(local, mask, h, float(c), int(q), derivatives)
     rcond = _condition_screen(moments)
     bad = np.flatnonzero(~(finite & (rcond >= RCOND_MIN)))
     if bad.size:
@@ -417,7 +440,7 @@ def _stencils(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None
             f"few or (nearly) collinear; increase h (the paper uses h = 3 dr) so that the support "
             f"spans both directions, or add points."
         )
-    return Stencils(*(jnp.asarray(a) for a in (index, phi, dx, dy, dxx, dxy, dyy)))
+    return Stencils(*(None if a is None else jnp.asarray(a) for a in (index, phi, dx, dy, dxx, dxy, dyy)))
 
 
 @entry_point
@@ -461,19 +484,21 @@ def build_stencils(points, h, m_max=None, c=0.2, q=1, neighbours=None) -> Stenci
 
 
 @entry_point
-def evaluate_at(points, h, targets, m_max=None, c=0.2, q=1) -> Stencils:
+def evaluate_at(points, h, targets, m_max=None, c=0.2, q=1, derivatives=True) -> Stencils:
     """MLS stencils at arbitrary target locations (probes, sections), from the nodes ``points``.
 
     Same approximation and code path as :func:`build_stencils`; ``h`` is a scalar or one radius
     per target, and the returned ``(T, m)`` stencils gather from the N nodes: the value of a
     nodal-parameter field ``f`` (N,) at the targets is ``value(st, f)``.  Padding entries repeat
     the index of the target's nearest node, with zero weights.  ``m_max`` as in
-    :func:`build_stencils` (default from the targets' neighbour counts).
+    :func:`build_stencils` (default from the targets' neighbour counts).  ``derivatives=False``
+    computes only ``phi`` (10x cheaper; the same values): the stencils' ``dx`` ... ``dyy`` are
+    then None, for :func:`value` only.
     """
     pts = _as_cloud("points", points)
     tgt = _as_cloud("targets", targets)
     hh = _as_radius(h, tgt.shape[0], "target")
-    return _stencils(pts, tgt, hh, m_max, c, q, "target", same_cloud=False)
+    return _stencils(pts, tgt, hh, m_max, c, q, "target", same_cloud=False, derivatives=derivatives)
 
 
 def value_matrix(st: Stencils, n_nodes: int | None = None) -> scipy.sparse.csc_matrix:

@@ -133,3 +133,16 @@ def test_condition_screen_is_a_lower_bound_exact_where_it_decides():
     low = exact < 1e3 * mls.RCOND_MIN
     np.testing.assert_array_equal(screen[low], exact[low])
     assert np.array_equal(screen >= mls.RCOND_MIN, exact >= mls.RCOND_MIN)
+
+
+def test_value_only_stencils_give_the_values_of_the_full_ones():
+    """derivatives=False computes phi alone (what the recorder needs at markers and sections)."""
+    rng = np.random.default_rng(7)
+    pts = rng.uniform(-1, 1, (300, 2))
+    targets = rng.uniform(-0.8, 0.8, (50, 2))
+    full = mls.evaluate_at(pts, 0.35, targets)
+    val = mls.evaluate_at(pts, 0.35, targets, derivatives=False)
+    np.testing.assert_array_equal(np.asarray(val.index), np.asarray(full.index))
+    phi, ref = np.asarray(val.phi), np.asarray(full.phi)
+    assert np.abs(phi - ref).max() <= 1e-14 * np.abs(ref).max()
+    assert val.dx is None and val.dyy is None

@@ -150,12 +150,15 @@ def neighbour_list(g: Geometry) -> mls.NeighbourList:
 
 
 @entry_point
-def evaluate_stencils(points: np.ndarray, n_tool: int, g: Geometry, targets: np.ndarray) -> mls.Stencils:
+def evaluate_stencils(points: np.ndarray, n_tool: int, g: Geometry, targets: np.ndarray,
+                      derivatives: bool = True) -> mls.Stencils:
     """MLS stencils at arbitrary ``targets`` (probes, sections, tracers) of the current cloud.
 
     Targets with r < R1 are approximated from the tool nodes, the others from the plate nodes
     (the same one-sided approximation as the model uses).  Returned stencils index the cloud.
+    ``derivatives=False``: values only (see :func:`jaxanm.mls.evaluate_at`).
     """
     targets = np.array(targets, dtype=np.float64).reshape(-1, 2)
     targets[np.hypot(targets[:, 0], targets[:, 1]) < g.R1, 0] += _shift(g)
-    return mls.evaluate_at(_apart(points, n_tool, g), g.h_factor * g.dr, targets, c=g.c, q=g.q)
+    return mls.evaluate_at(_apart(points, n_tool, g), g.h_factor * g.dr, targets, c=g.c, q=g.q,
+                           derivatives=derivatives)
