@@ -115,4 +115,8 @@ def test_effects_example(capsys):
     # tool conduction: the tool (held at T0 otherwise) warms and takes heat from the plate's peak;
     # T is continuous at the tool edge and the source is in the plate, so the tool stays cooler
     tc, no_tc = by["+ tool_conduction"], by["+ robin"]
-    assert no_tc["T_tool"] == T0 < tc["T_tool"] <= tc["T_plate"] < no_tc["T_plate"]
+    # without tool conduction the tool's nodal T is held at T0, and its value at the points is
+    # an MLS sum of those T0s: 1 to within the partition-of-unity round-off, 36 eps / rcond
+    # (tests/test_mls.py) with rcond >= 5e-5 at the tool-edge points of a regular cloud
+    assert abs(no_tc["T_tool"] - T0) <= 36 * np.finfo(float).eps / 5e-5 * T0
+    assert T0 < tc["T_tool"] <= tc["T_plate"] < no_tc["T_plate"]
