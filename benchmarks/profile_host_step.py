@@ -98,7 +98,7 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
         lambda _: sim.cKDTree(apart).query(apart, k=m, distance_upper_bound=float(np.nextafter(h.max(), np.inf))),
         repeats)
     if hasattr(recorder, "neighbours"):  # the run's candidate lists, as the hook uses them
-        parts["  neighbour search (candidate lists)"] = median_ms(lambda r: r.neighbours.query(apart, h, m),
+        parts["  neighbour search (candidate lists)"] = median_ms(lambda r: r.neighbours.query(apart, h, m)[:2],
                                                                  repeats, fresh)
     index = np.asarray(new_st.index)
     mask = np.asarray(new_st.phi) != 0
@@ -114,6 +114,16 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
     vm = mls.value_matrix(new_st)
     parts["  splu of the value matrix"] = median_ms(lambda _: jaxanm.linalg.sparse_lu(vm), repeats)
     parts["after_step (whole hook)"] = median_ms(lambda r: r.after_step(t, x, params), repeats, fresh)
+    # after a rezoning, each step also evaluates the fields at the material points (markers)
+    def primed():  # markers' candidate lists made on the previous step, as in a run
+        r = fresh()
+        r._values_at(x, recorder.points, getattr(r, "marker_neighbours", None))
+        return r
+
+    parts["values at the markers (after a rezoning)"] = median_ms(
+        lambda r: r._values_at(x, moved, getattr(r, "marker_neighbours", None)), repeats, primed)
+    parts["  the same with derivative stencils"] = median_ms(
+        lambda _: model.values(x, sim.evaluate_stencils(recorder.points, model.cloud.n_tool, g, moved)), repeats)
     return parts
 
 

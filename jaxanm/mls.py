@@ -317,12 +317,14 @@ def _check_m_max(m_max):
 class NeighbourList:
     """Neighbour candidates of a moving cloud (a Verlet list), for rebuilding its stencils.
 
-    One cKDTree query collects, for every point, the points within ``h + skin``.  Until some
-    point has moved more than ``skin / 2`` from where the list was made, every pair now within
-    ``h`` is among those candidates (each of the two moved at most ``skin / 2``), so the
-    nearest ``m`` within ``h`` are found by sorting the candidates' exact distances; beyond
-    that, or for another cloud size or radius, the list is remade.  The result is what
-    ``cKDTree.query(points, k=m, distance_upper_bound=h)`` returns (distances computed the
+    One cKDTree query collects, for every evaluation point (the nodes themselves, or moving
+    targets such as material points), the nodes within ``h + skin``.  Until the nodes and the
+    targets have together moved more than ``skin`` from where the list was made (the largest
+    node move plus the largest target move; for the nodes themselves twice the largest move),
+    every pair now within ``h`` is among those candidates, so the nearest ``m`` within ``h``
+    are found by sorting the candidates' exact distances; beyond that, or for other sizes or
+    another radius, the list is remade.  The result is what
+    ``cKDTree.query(targets, k=m, distance_upper_bound=h)`` returns (distances computed the
     same way, ``inf`` where fewer than ``m`` are within ``h``; rows with a candidate at ``h``
     to round-off are left to cKDTree), up to the order of equidistant points.  Plain numpy
     state: it pickles into checkpoints as it is.
@@ -335,51 +337,70 @@ class NeighbourList:
 
     def __init__(self, skin: float):
         self.skin = float(skin)
-        self.reference = None   # (N, 2) positions when the list was made
+        self.reference = None   # (N, 2) node positions when the list was made
+        self.targets = None     # (T, 2) target positions then (None: the nodes themselves)
         self.radius = None      # the h it was made for
-        self.candidates = None  # (N, K) indices, N where absent
+        self.candidates = None  # (T, K) node indices, N where absent
         self.rebuilds = 0
 
-    def _stale(self, points, h) -> bool:
-        if self.reference is None or self.reference.shape != points.shape or self.radius != h:
-            return True
-        moved = np.sqrt(np.max(np.sum((points - self.reference) ** 2, axis=1)))
-        return not 2.0 * moved <= self.skin
+    @staticmethod
+    def _moved(now, then) -> float:
+        return float(np.sqrt(np.max(np.sum((now - then) ** 2, axis=1))))
 
-    def query(self, points: np.ndarray, h: np.ndarray, m: int):
-        """``(dist, idx)`` of the ``m`` nearest points closer than ``nextafter(h.max())`` (itself first)."""
+    def _stale(self, points, targets, h) -> bool:
+        if (self.reference is None or self.reference.shape != points.shape or self.radius != h
+                or (targets is None) != (self.targets is None)
+                or (targets is not None and targets.shape != self.targets.shape)):
+            return True
+        moved = self._moved(points, self.reference)
+        moved += moved if targets is None else self._moved(targets, self.targets)
+        return not moved <= self.skin
+
+    def query(self, points: np.ndarray, h: np.ndarray, m: int | None, targets: np.ndarray | None = None):
+        """``(dist, idx, m)``: the ``m`` nearest nodes closer than ``nextafter(h.max())`` to each
+        target (default: to each node, itself first).  ``h`` (T,): radius per target; ``m=None``:
+        the largest count within ``h``, rounded up to a multiple of :data:`M_MAX_MULTIPLE`."""
         hmax = float(np.nextafter(h.max(), np.inf))
-        if self._stale(points, hmax):
+        centers = points if targets is None else targets
+        if self._stale(points, targets, hmax):
             tree = cKDTree(points)
             reach = hmax + self.skin
-            k = int(tree.query_ball_point(points, r=reach, return_length=True).max())
-            self.candidates = tree.query(points, k=k, distance_upper_bound=reach)[1]
+            k = int(tree.query_ball_point(centers, r=reach, return_length=True).max())
+            self.candidates = tree.query(centers, k=max(k, 1), distance_upper_bound=reach)[1].reshape(len(centers), -1)
             self.reference, self.radius = points.copy(), hmax
+            self.targets = None if targets is None else targets.copy()
             self.rebuilds += 1
         n, cand = points.shape[0], self.candidates
         # coordinates gathered one axis at a time (a 1-D take is 4x faster than rows of 2)
-        dx = np.append(points[:, 0], np.inf)[cand] - points[:, :1]  # index n: absent candidate
-        dy = np.append(points[:, 1], np.inf)[cand] - points[:, 1:]
+        dx = np.append(points[:, 0], np.inf)[cand] - centers[:, :1]  # index n: absent candidate
+        dy = np.append(points[:, 1], np.inf)[cand] - centers[:, 1:]
         d = np.sqrt(dx * dx + dy * dy)
-        flat = (np.argsort(d, axis=1, kind="stable")[:, :m]
-                + cand.shape[1] * np.arange(n)[:, None])
-        dist, idx = d.reshape(-1)[flat], cand.reshape(-1)[flat]
-        out = ~(dist < hmax)  # strict, as cKDTree's distance_upper_bound
-        dist[out], idx[out] = np.inf, n
-        if dist.shape[1] < m:  # fewer candidates than the stencil width
-            pad = m - dist.shape[1]
-            dist = np.concatenate([dist, np.full((n, pad), np.inf)], axis=1)
-            idx = np.concatenate([idx, np.full((n, pad), n)], axis=1)
         # A node at the radius to round-off (the polar cloud has them: the tool's third ring
         # is 3 dr = h from its centre) is in or out by round-off, and cKDTree's pruning of
         # its boxes (rounded box distances, measured: 11 ulps of h) decides it its own way:
         # let cKDTree decide those rows, so that the stencils are the ones it gives (the
         # weight there, exp(-1/c^2), is not negligible).
-        band = 1e-12 * (hmax + np.abs(points).max())
-        rows = np.flatnonzero((np.abs(d - hmax) <= band).any(axis=1))
+        band = 1e-12 * (hmax + np.abs(points).max() + np.abs(centers).max())
+        rows = np.flatnonzero(((np.abs(d - hmax) <= band) | (np.abs(d - h[:, None]) <= band)).any(axis=1))
+        tree = cKDTree(points) if rows.size else None
+        if m is None:
+            counts = (d <= h[:, None]).sum(axis=1)
+            if rows.size:
+                counts[rows] = tree.query_ball_point(centers[rows], r=h[rows], return_length=True)
+            m = M_MAX_MULTIPLE * max(1, math.ceil(int(counts.max()) / M_MAX_MULTIPLE))
+        flat = (np.argsort(d, axis=1, kind="stable")[:, :m]
+                + cand.shape[1] * np.arange(len(centers))[:, None])
+        dist, idx = d.reshape(-1)[flat], cand.reshape(-1)[flat]
+        out = ~(dist < hmax)  # strict, as cKDTree's distance_upper_bound
+        dist[out], idx[out] = np.inf, n
+        if dist.shape[1] < m:  # fewer candidates than the stencil width
+            pad = m - dist.shape[1]
+            dist = np.concatenate([dist, np.full((len(centers), pad), np.inf)], axis=1)
+            idx = np.concatenate([idx, np.full((len(centers), pad), n)], axis=1)
         if rows.size:
-            dist[rows], idx[rows] = cKDTree(points).query(points[rows], k=m, distance_upper_bound=hmax)
-        return dist, idx
+            dist[rows], idx[rows] = (a.reshape(rows.size, m) for a in
+                                     tree.query(centers[rows], k=m, distance_upper_bound=hmax))
+        return dist, idx, m
 
 
 def _stencils(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None, derivatives=True):
@@ -388,14 +409,14 @@ def _stencils(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None
     ``same_cloud``: the evaluation points are the nodes themselves (``centers is nodes``);
     padding then repeats each point's own index and coinciding points are rejected.  Otherwise
     padding repeats the index of the nearest node.  ``neighbours``: a :class:`NeighbourList`
-    to search instead of a new cKDTree (same cloud and a given ``m_max`` only).  Without
+    to search instead of a new cKDTree (for the cloud itself, with a given ``m_max``).  Without
     ``derivatives`` only ``phi`` is computed (the derivative fields are None).
     """
     _check_weight(c, q)
     _check_m_max(m_max)
-    if neighbours is not None and same_cloud and m_max is not None:
-        m = int(m_max)
-        dist, idx = neighbours.query(nodes, h, m)
+    if neighbours is not None and (m_max is not None or not same_cloud):
+        dist, idx, m = neighbours.query(nodes, h, None if m_max is None else int(m_max),
+                                        None if same_cloud else centers)
     else:
         tree = cKDTree(nodes)
         if m_max is None:
@@ -484,7 +505,7 @@ def build_stencils(points, h, m_max=None, c=0.2, q=1, neighbours=None) -> Stenci
 
 
 @entry_point
-def evaluate_at(points, h, targets, m_max=None, c=0.2, q=1, derivatives=True) -> Stencils:
+def evaluate_at(points, h, targets, m_max=None, c=0.2, q=1, derivatives=True, neighbours=None) -> Stencils:
     """MLS stencils at arbitrary target locations (probes, sections), from the nodes ``points``.
 
     Same approximation and code path as :func:`build_stencils`; ``h`` is a scalar or one radius
@@ -493,12 +514,14 @@ def evaluate_at(points, h, targets, m_max=None, c=0.2, q=1, derivatives=True) ->
     the index of the target's nearest node, with zero weights.  ``m_max`` as in
     :func:`build_stencils` (default from the targets' neighbour counts).  ``derivatives=False``
     computes only ``phi`` (10x cheaper; the same values): the stencils' ``dx`` ... ``dyy`` are
-    then None, for :func:`value` only.
+    then None, for :func:`value` only.  ``neighbours``: a :class:`NeighbourList` kept for
+    moving targets on a moving cloud (e.g. material points), used instead of a new cKDTree.
     """
     pts = _as_cloud("points", points)
     tgt = _as_cloud("targets", targets)
     hh = _as_radius(h, tgt.shape[0], "target")
-    return _stencils(pts, tgt, hh, m_max, c, q, "target", same_cloud=False, derivatives=derivatives)
+    return _stencils(pts, tgt, hh, m_max, c, q, "target", same_cloud=False, derivatives=derivatives,
+                     neighbours=neighbours)
 
 
 def value_matrix(st: Stencils, n_nodes: int | None = None) -> scipy.sparse.csc_matrix:

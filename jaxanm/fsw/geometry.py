@@ -141,7 +141,8 @@ def build_stencils(points: np.ndarray, n_tool: int, g: Geometry, m_max: int | No
 
 
 def neighbour_list(g: Geometry) -> mls.NeighbourList:
-    """Neighbour candidates for rebuilding the stencils of a moving cloud (:func:`build_stencils`).
+    """Neighbour candidates for the stencils of a moving cloud (:func:`build_stencils`) or of
+    targets moving with it (:func:`evaluate_stencils`).
 
     Skin h / 4: the lists hold about 1.6 times the stencil's neighbours, and are remade once
     some point has moved h / 8 (about 47 steps of the tool edge's rigid turn in fsw_paper).
@@ -151,14 +152,16 @@ def neighbour_list(g: Geometry) -> mls.NeighbourList:
 
 @entry_point
 def evaluate_stencils(points: np.ndarray, n_tool: int, g: Geometry, targets: np.ndarray,
-                      derivatives: bool = True) -> mls.Stencils:
+                      derivatives: bool = True, neighbours: mls.NeighbourList | None = None) -> mls.Stencils:
     """MLS stencils at arbitrary ``targets`` (probes, sections, tracers) of the current cloud.
 
     Targets with r < R1 are approximated from the tool nodes, the others from the plate nodes
     (the same one-sided approximation as the model uses).  Returned stencils index the cloud.
-    ``derivatives=False``: values only (see :func:`jaxanm.mls.evaluate_at`).
+    ``derivatives=False``: values only (see :func:`jaxanm.mls.evaluate_at`); ``neighbours``
+    (from :func:`neighbour_list`) carries candidates from one call to the next for targets
+    that move with the cloud.
     """
     targets = np.array(targets, dtype=np.float64).reshape(-1, 2)
     targets[np.hypot(targets[:, 0], targets[:, 1]) < g.R1, 0] += _shift(g)
     return mls.evaluate_at(_apart(points, n_tool, g), g.h_factor * g.dr, targets, c=g.c, q=g.q,
-                           derivatives=derivatives)
+                           derivatives=derivatives, neighbours=neighbours)

@@ -143,6 +143,7 @@ class _Recorder:
         # Lagrangian rebuilds: neighbour candidates and the refit's factorisation, carried
         # from step to step (and through checkpoints)
         self.neighbours = neighbour_list(scene.geometry)
+        self.marker_neighbours = neighbour_list(scene.geometry)
         self.refit = Refit()
         self._save_sections(x0)
         self._record(0.0, self.points, _full_values(model, model.initial_values(self.points)), save=True)
@@ -176,10 +177,11 @@ class _Recorder:
             for k in "uvT":
                 self.sections[name][k].append(sec[k])
 
-    def _values_at(self, x, targets: np.ndarray) -> dict:
-        """Full field values at arbitrary ``targets`` from unknowns ``x`` on the current nodes."""
+    def _values_at(self, x, targets: np.ndarray, neighbours=None) -> dict:
+        """Full field values at arbitrary ``targets`` from unknowns ``x`` on the current nodes
+        (``neighbours``: candidate lists kept for these targets, see :func:`neighbour_list`)."""
         st = evaluate_stencils(self.points, self.model.cloud.n_tool, self.scene.geometry, targets,
-                               derivatives=False)  # values only: 10x cheaper
+                               derivatives=False, neighbours=neighbours)  # values only: 10x cheaper
         return _full_values(self.model, self.model.values(x, st))
 
     def _advected(self, particles: np.ndarray, x, dt: float) -> np.ndarray:
@@ -260,7 +262,7 @@ class _Recorder:
         if self.markers is None:
             material, material_values = _move(self.points, kind, _velocity(full), omega, dt), full
         else:
-            at = self._values_at(x, self.markers)
+            at = self._values_at(x, self.markers, self.marker_neighbours)
             material_values = self._marker_values(full, at)
             material = self.markers = _move(self.markers, kind, _velocity(at), omega, dt)
         if self._sheared(np.asarray(params["st"].index)):
