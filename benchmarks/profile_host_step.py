@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import copy
 import datetime
+import inspect
 import json
 import os
 import pathlib
@@ -87,9 +88,17 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
     parts["full values"] = median_ms(lambda _: sim._full_values(model, values), repeats)
     parts["record probes"] = median_ms(lambda r: r._record(t, moved, full, False), repeats, fresh)
     parts["move"] = median_ms(lambda _: sim._move(recorder.points, kind, sim._velocity(full), omega, dt), repeats)
-    parts["shear test"] = median_ms(lambda r: r._sheared(np.asarray(st.index)), repeats, fresh)
-    parts["stencils (total)"] = median_ms(
-        lambda _: sim.build_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width), repeats)
+    # the code before issue 14 took no arguments here (a cKDTree per call): both are profiled
+    takes_index = len(inspect.signature(recorder._sheared).parameters) > 0
+    parts["shear test"] = median_ms(lambda r: r._sheared(np.asarray(st.index)) if takes_index else r._sheared(),
+                                    repeats, fresh)
+    if hasattr(recorder, "neighbours"):  # as the hook rebuilds: with the run's candidate lists
+        parts["stencils (total)"] = median_ms(
+            lambda r: sim.build_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width, neighbours=r.neighbours),
+            repeats, fresh)
+    else:
+        parts["stencils (total)"] = median_ms(
+            lambda _: sim.build_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width), repeats)
     # the stencil rebuild's two halves: neighbour search, MLS kernel (how mls._stencils calls them)
     apart = _apart(moved, model.cloud.n_tool, g)
     h = np.full(len(apart), g.h_factor * g.dr)
@@ -115,16 +124,57 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
     parts["  splu of the value matrix"] = median_ms(lambda _: jaxanm.linalg.sparse_lu(vm), repeats)
     parts["after_step (whole hook)"] = median_ms(lambda r: r.after_step(t, x, params), repeats, fresh)
     # after a rezoning, each step also evaluates the fields at the material points (markers)
+    def markers(r, targets):
+        if hasattr(r, "marker_neighbours"):
+            return r._values_at(x, targets, r.marker_neighbours)
+        return r._values_at(x, targets)
+
     def primed():  # markers' candidate lists made on the previous step, as in a run
         r = fresh()
-        r._values_at(x, recorder.points, getattr(r, "marker_neighbours", None))
+        markers(r, recorder.points)
         return r
 
-    parts["values at the markers (after a rezoning)"] = median_ms(
-        lambda r: r._values_at(x, moved, getattr(r, "marker_neighbours", None)), repeats, primed)
+    parts["values at the markers (after a rezoning)"] = median_ms(lambda r: markers(r, moved), repeats, primed)
     parts["  the same with derivative stencils"] = median_ms(
         lambda _: model.values(x, sim.evaluate_stencils(recorder.points, model.cloud.n_tool, g, moved)), repeats)
     return parts
+
+
+CHANGES = """\
+## What changed (issue 14, item 1), and what each part gained
+
+- **values** (`Model.values`): numpy gathers of the stencils instead of a jnp dispatch per field.
+- **shear test**: the nearest neighbour of each plate point is `index[:, 1]` of the stencils
+  the step was solved on (nearest first), instead of a cKDTree of the plate points per step.
+- **neighbour search** (`mls.NeighbourList`, skin h/4): candidates within h + skin kept from
+  one rebuild to the next, remade when the points (and, for markers, the targets) have moved
+  more than the skin allows (fsw_paper: every ~47 steps, by the tool edge's rigid turn); the
+  m nearest are the sorted candidates.  Rows with a candidate at h to round-off (the polar
+  cloud's tool ring at exactly 3 dr from the centre) are left to cKDTree, whose box pruning
+  decides them its own way (measured: a node 11 ulps inside h excluded); without that the
+  centre's stencil gained and lost a node of weight exp(-1/c^2) = 1.5e-5 and T at the tool
+  centre moved by 1.3e-7 of its rise in 0.02 s.
+- **MLS kernel**: chunks of 128 points instead of 512 (the call's working set stays in L2:
+  9 vs 15 ms on one core), passed to the jitted kernel as numpy; the rcond check by the bound
+  det / trace^6 (0.5 ms) and eigenvalues only where it does not decide (2.2 ms before).  The
+  kernel itself (nested `jax.jacfwd` of the 6x6 solve in `mls._kernel`, another engineer's
+  function) is what is left: ~9 ms on an idle core, more under load.
+- **refit** (`model.Refit`): preconditioned Richardson iterations on the previous SuperLU of
+  the value matrix, stopped when the estimated remaining error is below 1e-15 of max |x| per
+  field (the direct solve's own error is cond eps, cond ~ 3); 5-7 iterations (contraction
+  0.0044 with the previous step's factors), a new factorisation when more than 6 were needed
+  (about every 4 steps).  The value matrix factorises faster with linalg's new ordering too.
+- **after a rezoning** (two thirds of the full run's steps), the fields at the material points
+  come from value-only MLS stencils (`evaluate_at(derivatives=False)`: phi alone, the same
+  values, 10x cheaper) and candidate lists kept for the moving markers.
+
+Results unchanged: `jaxanm run fsw_paper --t-end 0.02` against the code of af4c632, largest
+relative differences (fields at the saved times, probes at every step, `/tmp`-style check as
+in the commit messages): u, v 3e-15, T 9e-14 of its rise, probes 3e-12; with
+`--set geometry.rezone=0.999` (25 rezonings, markers from step 13 on): T 1.1e-13, probes
+1.9e-12.  For scale, one ulp of noise added to each refit of the old code gives 2.5e-13 and
+1.5e-12.  Same factorisation counts, series orders and sub-steps.
+"""
 
 
 def write(label: str, parts: dict, meta: dict) -> None:
@@ -134,13 +184,14 @@ def write(label: str, parts: dict, meta: dict) -> None:
     data[label] = {"parts_ms": parts, **meta}
     path.write_text(json.dumps(data, indent=1) + "\n")
     labels = list(data)
-    names = list(dict.fromkeys(k for lab in labels for k in data[lab]["parts_ms"]))
+    names = list(dict.fromkeys(k for lab in labels[::-1] for k in data[lab]["parts_ms"]))  # the latest's order
     lines = ["# Host work of one Lagrangian fsw_paper step",
              "",
              "Made by `python benchmarks/profile_host_step.py --label LABEL` (issue 14, item 1): "
              "median ms per part over the repeats, one step of a developed flow (3 Newton steps "
-             "from rest), each call on the same state; indented rows are parts of the row above. "
-             "Load average (1 min) when measured is given per label.",
+             "from rest), each call on the same state; indented rows are parts of the row above, "
+             "an empty cell a path that code did not have.  Load average (1 min) when measured is "
+             "given per label; labels measured back to back compare, absolute times follow the load.",
              "",
              "| part | " + " | ".join(labels) + " |",
              "| --- | " + " | ".join("---:" for _ in labels) + " |"]
@@ -155,7 +206,7 @@ def write(label: str, parts: dict, meta: dict) -> None:
     notes = [data[lab].get("note") for lab in labels if data[lab].get("note")]
     if notes:
         lines += [""] + [f"- {lab}: {data[lab]['note']}" for lab in labels if data[lab].get("note")]
-    (DOCS / "profile_host_step.md").write_text("\n".join(lines) + "\n")
+    (DOCS / "profile_host_step.md").write_text("\n".join(lines) + "\n\n" + CHANGES)
 
 
 def main() -> None:
