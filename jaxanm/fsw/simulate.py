@@ -140,10 +140,12 @@ class _Recorder:
         self.markers = None
         self.rezone_times = []
         self.seeded_spacing = _nearest_spacing(self.points[cloud.n_tool:])
-        # Lagrangian rebuilds: neighbour candidates and the refit's factorisation, carried
-        # from step to step (and through checkpoints)
+        # Lagrangian rebuilds: neighbour candidates (of the nodes, the material points after a
+        # rezoning, the tracers) and the refit's factorisation, carried from step to step (and
+        # through checkpoints)
         self.neighbours = neighbour_list(scene.geometry)
         self.marker_neighbours = neighbour_list(scene.geometry)
+        self.tracer_neighbours = neighbour_list(scene.geometry)
         self.refit = Refit()
         self._save_sections(x0)
         self._record(0.0, self.points, _full_values(model, model.initial_values(self.points)), save=True)
@@ -186,7 +188,7 @@ class _Recorder:
 
     def _advected(self, particles: np.ndarray, x, dt: float) -> np.ndarray:
         """Passive particles moved over dt by the flow of unknowns ``x`` on the current nodes."""
-        v = self._values_at(x, particles)
+        v = self._values_at(x, particles, self.tracer_neighbours)
         return _move(particles, self.model.cloud.kind, _velocity(v), self.scene.tool.omega, dt)
 
     def _marker_values(self, node_values: dict, at_markers: dict) -> dict:
