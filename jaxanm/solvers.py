@@ -334,16 +334,12 @@ class _ANMStepper:
                     accepted = self._accept_early(coeffs[:j], d_s, x_old, t, dt, params)
                     if accepted is not None:
                         return accepted
-            amax = validity_range(coeffs, P.scale, self.opts.tol,
-                                  state=d_s if self.opts.criterion == "state" else None)
+            amax = self._validity_range(coeffs, d_s)
             if amax >= 1.0:
                 d_end = d_s + coeffs.sum(axis=0)
                 check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], x_old, t, dt, params)
                 if check <= CHECK_LIMIT:
-                    st.amax.append(amax)
-                    st.orders.append(p)
-                    self._accepted_residual = r_end
-                    return d_end
+                    return self._accepted(d_end, amax, p, r_end)
                 # the series claimed a = 1 but its end point is not converged (e.g. a last
                 # coefficient that vanishes by parity): not an accepted step
                 if not fresh:  # stale K*: refactorise at the start point and redo the series
@@ -384,17 +380,25 @@ class _ANMStepper:
         the end point ``d_s + c_1 + ... + c_j`` when its a_max (eq. 26 at order j) reaches 1 and
         it passes the same end-point check as a full series, else None (the series goes on to
         order j + 1; a truncated series that fails is no failure of the step)."""
-        P, st = self.problem, self.problem.stats
-        amax = validity_range(coeffs, P.scale, self.opts.tol,
-                              state=d_s if self.opts.criterion == "state" else None)
+        amax = self._validity_range(coeffs, d_s)
         if not amax >= 1.0:
             return None
         d_end = d_s + coeffs.sum(axis=0)
         check, _, r_end = self._end_point_check(d_end, d_s, coeffs[0], x_old, t, dt, params)
         if check > CHECK_LIMIT:
             return None
+        return self._accepted(d_end, amax, coeffs.shape[0], r_end)
+
+    def _validity_range(self, coeffs, d_s) -> float:
+        """a_max of the series ``coeffs`` from ``d_s`` by this solver's criterion."""
+        return validity_range(coeffs, self.problem.scale, self.opts.tol,
+                              state=d_s if self.opts.criterion == "state" else None)
+
+    def _accepted(self, d_end, amax, order, r_end):
+        """Record an accepted series (a_max, its order, the residual at its end point); return ``d_end``."""
+        st = self.problem.stats
         st.amax.append(amax)
-        st.orders.append(coeffs.shape[0])
+        st.orders.append(order)
         self._accepted_residual = r_end
         return d_end
 
