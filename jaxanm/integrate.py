@@ -114,6 +114,16 @@ def params_float64(params):
     return params
 
 
+def on_device(params):
+    """``params`` with every array leaf placed on the device once (``jax.device_put``).
+
+    A jitted call converts each numpy leaf it is given (a copy to the device per leaf and per
+    call); a step makes several calls with the same params (residuals, series orders,
+    tangents), so the run hands them over as device arrays, converted once per change.
+    """
+    return jax.device_put(params)
+
+
 def _save_steps(t0, dt, n_steps, save_every, save_at):
     if save_at is None:
         every = save_every or 1
@@ -142,7 +152,9 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     x0 : array (n,)
         Initial state.
     params : pytree of arrays
-        Traced parameters of the residual (changing values never recompiles).
+        Traced parameters of the residual (changing values never recompiles).  The run places
+        them on the device once (and again each time ``after_step`` changes them): the
+        residual and the hooks receive them as jax arrays.
     t0, t1, dt : float
         Time span and step; the last step is shortened to end exactly at t1.
     solver : ANM | Newton | ModifiedNewton
@@ -207,7 +219,7 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     if host_state is not None and not (isinstance(host_state, tuple) and len(host_state) == 2
                                        and all(callable(f) for f in host_state)):
         raise InputError("host_state must be a (get, set) pair of callables")
-    params = params_float64(params)
+    params = on_device(params_float64(params))
     start = time.perf_counter()
     n = x0.size
     jacobian = jacobian_kind(jacobian, sparsity, n)
@@ -219,10 +231,11 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     fingerprint = {"n": n, "t0": float(t0), "t1": float(t1), "dt": float(dt), "solver": repr(solver)}
 
     run = _RunState(k=0, t=float(t0), x=x0, params=params, stats=Stats(), ts=[float(t0)], xs=[x0.copy()],
-                    ps=[params] if save_params else None, observed=_observation(observe, t0, x0, params, None))
+                    ps=[to_host(params)] if save_params else None, observed=_observation(observe, t0, x0, params, None))
     kstar = None
     if resume and os.path.exists(checkpoint):
         run, kstar, host = _RunState.load(checkpoint, fingerprint)
+        run.params = on_device(run.params)
         if host_state is not None:
             if host is None:
                 raise InputError(f"checkpoint {checkpoint} holds no host state, but this run needs one; "
@@ -282,6 +295,8 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
                 params_new = run.params if after_step is None else after_step(t_new, x_new, run.params)
                 if isinstance(params_new, Remap):
                     params_new, x_new = params_new.params, _remapped_state(params_new.x, x_new)
+                if params_new is not run.params:
+                    params_new = on_device(params_new)
                 run.advance(k, t_new, x_new, params_new, saved=k in saves, observe=observe)
                 guard.release()
                 if callback is not None:
@@ -350,7 +365,7 @@ class _RunState:
             self.ts.append(t)
             self.xs.append(x.copy())
             if self.ps is not None:
-                self.ps.append(params)
+                self.ps.append(to_host(params))  # numpy, as the user gave them
         self.observed = _observation(observe, t, x, params, self.observed)
 
     def dump(self, path, fingerprint: dict, kstar, host=None) -> None:
