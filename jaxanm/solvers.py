@@ -62,30 +62,51 @@ def _affine_functions(residual, d_s, args):
 
 
 class SeriesPath:
-    """The residual's Taylor coefficients along the ANM path, one order per :meth:`next`
-    (counted in ``stats.series_orders`` and timed as ``series``).
+    """The residual's Taylor coefficients along the ANM path from ``d_s``, one order per
+    :meth:`next` (counted in ``stats.series_orders`` and timed as ``series``).
 
     The affine part of the residual is applied outside jet (:class:`~jaxanm.series.AffinePath`);
     ``pad_to`` as there (None: truncated jets, one compilation per order).
+    :meth:`start_residual` evaluates ``R(d_s)`` together with the frontier values the series
+    starts from, in one call.
     """
 
-    def __init__(self, problem: "Problem", d_s, args: tuple, pad_to: int | None):
+    def __init__(self, problem: "Problem", d_s, args: tuple, pad_to: int | None, lookahead: bool = False):
         self._problem, self._d_s, self._args, self._pad_to = problem, d_s, args, pad_to
+        self._lookahead = lookahead
         self._terms = []
         with problem.stats.timer("series"):
-            fns = _affine_functions(problem._raw_residual, d_s, args)
-            self._path = None if fns is None else AffinePath(fns, d_s, args, pad_to)
+            self._fns = problem.affine_functions(d_s, args)
+        self._path = None
+
+    def start_residual(self) -> np.ndarray:
+        """``R(d_s)`` on the host (counted as a residual evaluation)."""
+        P = self._problem
+        if self._fns is None:
+            return P.residual(self._d_s, *self._args)
+        with P.stats.timer("series"):
+            r, f0 = self._fns.residual_and_frontier(self._d_s, *self._args)
+            self._path = AffinePath(self._fns, self._d_s, self._args, self._pad_to, f0=f0,
+                                    lookahead=self._lookahead)
+            r = np.asarray(r)
+        P.stats.residual_evaluations += 1
+        return r
 
     def next(self, c) -> np.ndarray:
-        """Append the path coefficient ``c_k``; return the residual's coefficient ``[R]_k``."""
+        """Append the path coefficient ``c_k``; return the residual's coefficient ``[R]_k``
+        (with ``lookahead``: ``[R]_{k+1}`` for the provisional ``c_{k+1} = c_k``)."""
         P = self._problem
-        if self._path is None:  # jet of the whole residual
+        if self._fns is None:  # jet of the whole residual
             self._terms.append(np.asarray(c))
-            k, terms = len(self._terms), np.stack(self._terms)
+            terms = np.stack(self._terms + self._terms[-1:] * self._lookahead)
+            k = terms.shape[0]
             if self._pad_to is not None:
                 terms = np.concatenate([terms, np.zeros((self._pad_to - k, terms.shape[1]))])
             return P.series(self._d_s, terms, *self._args)[k - 1]
         with P.stats.timer("series"):
+            if self._path is None:
+                self._path = AffinePath(self._fns, self._d_s, self._args, self._pad_to,
+                                        lookahead=self._lookahead)
             r = self._path.next(c)
         P.stats.series_orders += 1
         return r
@@ -105,6 +126,14 @@ class Problem:
         self._sparse = None
         self._pattern_key = None
         self._dense = dense_jacobian_function(residual) if jacobian == "dense" else None
+        self._affine = None  # (found, AffineFunctions or None): the layout is fixed within a run
+
+    def affine_functions(self, d_s, args):
+        """The residual's affine-split series functions for this run's argument layout (looked
+        up once: a run keeps its shapes and dtypes), or None when it cannot be split."""
+        if self._affine is None:
+            self._affine = (True, _affine_functions(self._raw_residual, d_s, args))
+        return self._affine[1]
 
     def residual(self, x, x_old, t, dt, params) -> np.ndarray:
         """Step residual on the host."""
@@ -246,6 +275,20 @@ class ANM:
         below; at order p everything is as in the fixed-order mode.  The orders used are in
         ``stats.orders``.  ``False`` (fixed order p, as in the paper's Table 1) keeps one
         compiled jet for all orders.
+    homotopy : {"convex", "newton"}
+        The artificial problem whose series is summed at a = 1 (both reach ``R(d) = 0`` there
+        and share the validity range, the end-point check and the continuation).
+        ``"convex"`` is the paper's eq. 22: ``(1 - a) K* (d - d_s) + a R(d) = 0``; order j reads
+        ``K* c_j = K* c_{j-1} - [R]_{j-1}``, so the nonlinear terms of order j - 1 enter at order
+        j: with a fresh K* (the tangent K_T at d_s) c_2 = 0, and the series gains about one power
+        of the increment every two orders.  ``"newton"`` is
+        ``R(d) = (1 - a) [R(d_s) + (K_T - K*) (d - d_s)]``: its tangent at a = 0 is K* itself,
+        with a fresh K* it is the Newton homotopy ``R(d) = (1 - a) R(d_s)`` of the ANM
+        literature, and order j reads ``K* c_j = K* c_{j-1} - [R]_j`` with ``[R]_j`` taken along
+        the path with the provisional ``c_j = c_{j-1}`` (``K_T c_{j-1}`` plus the nonlinear terms
+        of order j: one more term of the same jet).  Each order then gains a power of the
+        increment, as a modified-Newton iteration with the same K* does
+        (docs/notes/anm_homotopy.md).
 
     Notes
     -----
@@ -269,6 +312,7 @@ class ANM:
     max_substeps: int = 50
     criterion: str = "increment"
     adaptive: bool = False
+    homotopy: str = "convex"
 
     def __post_init__(self):
         if not (isinstance(self.order, (int, np.integer)) and not isinstance(self.order, bool) and self.order >= 2):
@@ -279,6 +323,8 @@ class ANM:
         _check_count("ANM", "max_substeps", self.max_substeps, 0)
         if not isinstance(self.adaptive, (bool, np.bool_)):
             raise InputError(f"ANM.adaptive must be True or False, got {self.adaptive!r}")
+        if self.homotopy not in ("convex", "newton"):
+            raise InputError(f"ANM.homotopy must be 'convex' (the paper's eq. 22) or 'newton', got {self.homotopy!r}")
         if self.criterion not in ("increment", "state"):
             raise InputError(f"ANM.criterion must be 'increment' (eq. 26) or 'state', got {self.criterion!r}")
 
@@ -311,7 +357,13 @@ class _ANMStepper:
         amax = None  # of the previous series in this step (reported if a later one fails)
         r_next = None  # R at the next series' start when already known (a sub-step to a checked end point)
         while True:
-            r0 = P.residual(d_s, x_old, t, dt, params) if r_next is None else r_next
+            # the residual coefficient that order j needs depends on c_1 .. c_{j-1} only (and, for
+            # the Newton homotopy, on the provisional c_j = c_{j-1}): the adaptive mode truncates
+            # each jet there; the fixed order compiles one jet for all orders (zeros padded)
+            newton = self.opts.homotopy == "newton"
+            path = SeriesPath(P, d_s, (x_old, t, dt, params), lookahead=newton,
+                              pad_to=None if self.opts.adaptive else p - 1 + newton)
+            r0 = path.start_residual() if r_next is None else r_next
             r_next = None
             r0_norm = float(np.max(np.abs(r0)))
             if not np.isfinite(r0_norm):
@@ -323,9 +375,6 @@ class _ANMStepper:
             coeffs = np.zeros((p, d_s.size))
             with st.timer("solve"):
                 coeffs[0] = -self.fact.solve(r0)
-            # order j - 1 of the residual needs c_1 .. c_{j-1} only: the adaptive mode truncates
-            # each jet there; the fixed order compiles one jet for all orders (zeros padded)
-            path = SeriesPath(P, d_s, (x_old, t, dt, params), pad_to=None if self.opts.adaptive else p - 1)
             for j in range(2, p + 1):
                 rj = path.next(coeffs[j - 2])
                 with st.timer("solve"):

@@ -353,7 +353,8 @@ class Time(_Section):
 class SolverSpec(_Section):
     """Nonlinear step solver: ``kind`` in ``anm | newton | modified_newton``, ``tol``; ANM ``order``,
     ``criterion`` (``increment``: the paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`),
-    ``max_substeps`` and ``adaptive`` (order-adaptive series, ``order`` the maximum)."""
+    ``max_substeps``, ``adaptive`` (order-adaptive series, ``order`` the maximum) and ``homotopy``
+    (``convex``: the paper's eq. 22, or ``newton``: see :class:`jaxanm.ANM`)."""
 
     _name = "solver"
     kind: str = "anm"
@@ -362,6 +363,7 @@ class SolverSpec(_Section):
     criterion: str = "increment"
     max_substeps: int = 50
     adaptive: bool = False
+    homotopy: str = "convex"
 
     def _validate(self):
         _check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
@@ -371,6 +373,8 @@ class SolverSpec(_Section):
         _check("solver.tol", self.tol, 0 < self.tol < 1, "must be in (0, 1)")
         _check("solver.criterion", self.criterion, self.criterion in ("increment", "state"),
                "must be 'increment' (eq. 26) or 'state'")
+        _check("solver.homotopy", self.homotopy, self.homotopy in ("convex", "newton"),
+               "must be 'convex' (the paper's eq. 22) or 'newton'")
         _check("solver.max_substeps", self.max_substeps, self.max_substeps >= 0, "must be an integer >= 0")
 
     def make(self):
@@ -379,7 +383,7 @@ class SolverSpec(_Section):
 
         if self.kind == "anm":
             return jaxanm.ANM(order=self.order, tol=self.tol, criterion=self.criterion,
-                              max_substeps=self.max_substeps, adaptive=self.adaptive)
+                              max_substeps=self.max_substeps, adaptive=self.adaptive, homotopy=self.homotopy)
         if self.kind == "newton":
             return jaxanm.Newton(tol=self.tol)
         return jaxanm.ModifiedNewton(tol=self.tol)
