@@ -2,9 +2,11 @@
 
 The ANM series of one step, ``u(a) = u_0 + sum_{i=1}^p a^i c_i`` (``coeffs[i-1] = c_i``, as in
 :mod:`jaxanm.solvers`), is replaced by the vector rational fraction of Cochelin, Damil and
-Potier-Ferry (Cochelin 1994; Elhage-Hussein, Potier-Ferry and Damil 2000, "A numerical
-continuation method based on Padé approximants", Int. J. Solids Struct. 37; Cochelin, Damil and
-Potier-Ferry 2007, "Méthode asymptotique numérique", appendix on Padé approximants):
+Potier-Ferry (Cochelin, Damil and Potier-Ferry 1994, "Asymptotic-numerical methods and Padé
+approximants for non-linear elastic structures", Int. J. Numer. Meth. Eng. 37; Elhage-Hussein,
+Potier-Ferry and Damil 2000, "A numerical continuation method based on Padé approximants",
+Int. J. Solids Struct. 37; the form SANM's ``libsanm/pade.h`` takes from "A critical review of
+asymptotic numerical methods", appendix 1):
 
 .. math::
 
@@ -41,7 +43,7 @@ b = 1.  For linearly independent coefficients this is the classical approximant;
 geometric series it is the exact ``[p-1/1]`` fraction; for vanishing higher coefficients the
 polynomial itself.
 
-**Validity range** (Elhage-Hussein et al. 2000, eq. 30): ``P_p`` is trusted where it agrees
+**Validity range** (Elhage-Hussein et al. 2000): ``P_p`` is trusted where it agrees
 with the approximant ``P_{p-1}`` built the same way from ``c_1 .. c_{p-1}``,
 
 .. math::
