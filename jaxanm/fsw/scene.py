@@ -353,7 +353,8 @@ class Time(_Section):
 class SolverSpec(_Section):
     """Nonlinear step solver: ``kind`` in ``anm | newton | modified_newton``, ``tol``; ANM ``order``,
     ``criterion`` (``increment``: the paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`),
-    ``max_substeps`` and ``adaptive`` (order-adaptive series, ``order`` the maximum)."""
+    ``max_substeps``, ``adaptive`` (order-adaptive series, ``order`` the maximum) and ``pade``
+    (accept series through their Padé approximant, :class:`jaxanm.ANM`; needs ``order >= 3``)."""
 
     _name = "solver"
     kind: str = "anm"
@@ -362,6 +363,7 @@ class SolverSpec(_Section):
     criterion: str = "increment"
     max_substeps: int = 50
     adaptive: bool = False
+    pade: bool = False
 
     def _validate(self):
         _check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
@@ -372,6 +374,9 @@ class SolverSpec(_Section):
         _check("solver.criterion", self.criterion, self.criterion in ("increment", "state"),
                "must be 'increment' (eq. 26) or 'state'")
         _check("solver.max_substeps", self.max_substeps, self.max_substeps >= 0, "must be an integer >= 0")
+        _check("solver.pade", self.pade, not (self.pade and self.kind == "anm" and self.order < 3),
+               f"needs solver.order >= 3, got {self.order} (the Padé range compares the approximants of orders "
+               "p and p - 1; for p = 2 the lower one is the start point)")
 
     def make(self):
         """The :mod:`jaxanm` solver options object (``jaxanm.ANM``, ``Newton`` or ``ModifiedNewton``)."""
@@ -379,7 +384,7 @@ class SolverSpec(_Section):
 
         if self.kind == "anm":
             return jaxanm.ANM(order=self.order, tol=self.tol, criterion=self.criterion,
-                              max_substeps=self.max_substeps, adaptive=self.adaptive)
+                              max_substeps=self.max_substeps, adaptive=self.adaptive, pade=self.pade)
         if self.kind == "newton":
             return jaxanm.Newton(tol=self.tol)
         return jaxanm.ModifiedNewton(tol=self.tol)
