@@ -67,10 +67,11 @@ from .errors import InputError
 DEPENDENCE = 1e-10
 """A coefficient direction whose part independent of the columns kept before it is below this
 fraction of the largest (rescaled) coefficient is left out of the denominator fit.  Its weight in
-the series at ``a = rho`` is then below 1e-10 of the largest term: under the accuracy any ANM
-tolerance asks for, yet four orders of magnitude above the round-off of the coefficients
-themselves (the parity zeros of tests/test_anm_acceptance.py come out at 1e-14 relative), so
-what is dropped is noise or exact dependence, and a denominator is never fitted to noise."""
+the series at ``a = rho`` is then below 1e-10 of the largest term, under the tolerances the ANM
+is run with (1e-6 .. 1e-8; an end point is judged by the solver's end-point check whatever
+was dropped), yet four orders of magnitude above the round-off of the coefficients themselves
+(the parity zeros of tests/test_anm_acceptance.py come out at 1e-14 relative): what is dropped
+is noise or exact dependence, and a denominator is never fitted to noise."""
 
 ROOT_IMAG = 1e-6
 """A root ``z`` of a denominator counts as real when ``|Im z| <= ROOT_IMAG |z|``: a double real
@@ -85,8 +86,8 @@ GRID_PER_OCTAVE = 16
 still judges any end point)."""
 
 GRID_OCTAVES = 52
-"""Octaves scanned below the top of the search interval (down to ``2^-52`` of it, where the
-criterion holds to round-off for any series with p >= 3)."""
+"""Octaves scanned below the top of the search interval (down to ``2^-52`` of it, a relative
+eps: a range shorter than that is reported as 0)."""
 
 BISECTIONS = 30
 """Bisection steps refining the bracketed first failure (relative precision ``2^-30 * 4.4 %``)."""
