@@ -43,6 +43,7 @@ def test_large_steps_accepted_through_pade_solve_the_steps_with_fewer_factorisat
     newton = _run(make, jaxanm.Newton(tol=1e-12), dt)
     a, b = pade.stats, plain.stats
     assert a.pade_accepted >= 1 and b.pade_accepted == 0
+    assert a.summary()["pade_accepted"] == a.as_dict()["pade_accepted"] == a.pade_accepted
     assert a.factorizations < b.factorizations and a.substeps <= b.substeps
     assert len(a.amax) == len(a.orders) == a.time_steps and all(x >= 1.0 for x in a.amax)
     assert a.orders == [order] * a.time_steps
