@@ -20,6 +20,7 @@ import scipy.sparse
 from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
 from .jacobian import SparseJacobian, dense_jacobian_function
 from .linalg import Factorization, factorize
+from . import pade as _pade
 from .series import AffineFunctions, AffinePath, path_coefficients
 from .stats import Stats
 
@@ -289,6 +290,23 @@ class ANM:
         of order j: one more term of the same jet).  Each order then gains a power of the
         increment, as a modified-Newton iteration with the same K* does
         (docs/notes/anm_homotopy.md).
+    pade : bool
+        Padé approximants extend the order-p series (:mod:`jaxanm.pade`: one common
+        denominator, Elhage-Hussein, Potier-Ferry and Damil 2000).  A series whose a_max < 1 is
+        still accepted when the validity range of its approximant ``P_p`` (where it agrees with
+        ``P_{p-1}`` within ``tol`` relative to the increment, or for ``"state"`` to the larger
+        of increment and state; never past a real pole) reaches a = 1: the end point is then
+        ``P_p(1)``, not the truncated sum, and it must pass the same end-point check as any
+        accepted series (Notes).  With a fresh K* a continuation sub-step goes to ``P_p`` at its
+        range when that is farther than a_max.  Nothing else changes (a stale K* whose series
+        and approximant both fall short is refactorised as before).  Costs one QR of the
+        ``(n, p)`` scaled coefficients per series with a_max < 1 (counted in the ``other``
+        wall time).  ``stats.pade_accepted`` counts the series accepted this way; their
+        ``stats.amax`` entry is the approximant's range, searched up to a = 1 (so 1.0).
+        Needs ``order >= 3`` (for p = 2 the companion ``P_1`` is the start point and vouches
+        for nothing).  With ``adaptive`` the approximant is tried at order p only: below p the
+        next order costs one jet order and no factorisation, and is what adaptivity weighs;
+        the approximant replaces what order p alone would refuse.
 
     Notes
     -----
@@ -313,6 +331,7 @@ class ANM:
     criterion: str = "increment"
     adaptive: bool = False
     homotopy: str = "convex"
+    pade: bool = False
 
     def __post_init__(self):
         if not (isinstance(self.order, (int, np.integer)) and not isinstance(self.order, bool) and self.order >= 2):
@@ -325,6 +344,12 @@ class ANM:
             raise InputError(f"ANM.adaptive must be True or False, got {self.adaptive!r}")
         if self.homotopy not in ("convex", "newton"):
             raise InputError(f"ANM.homotopy must be 'convex' (the paper's eq. 22) or 'newton', got {self.homotopy!r}")
+        if not isinstance(self.pade, (bool, np.bool_)):
+            raise InputError(f"ANM.pade must be True or False, got {self.pade!r}")
+        if self.pade and self.order < 3:
+            raise InputError(f"ANM.pade=True needs order >= 3, got order={self.order}: the Padé range compares "
+                             "the approximants of orders p and p - 1, and for p = 2 the lower one is the start "
+                             "point (use order >= 3, or pade=False)")
         if self.criterion not in ("increment", "state"):
             raise InputError(f"ANM.criterion must be 'increment' (eq. 26) or 'state', got {self.criterion!r}")
 
@@ -409,19 +434,36 @@ class _ANMStepper:
                     d_s = d_s + evaluate_series(coeffs, 0.5)
                 fresh = False
                 continue
+            approx, a_pade = None, 0.0  # the Padé approximant and its range, when tried
+            if self.opts.pade and np.all(np.isfinite(coeffs)):
+                approx, a_pade = self._pade_range(coeffs, d_s)
+                if a_pade >= 1.0:  # the approximant's end point, checked like a series'
+                    d_end = d_s + _pade.evaluate(approx, 1.0)
+                    check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], x_old, t, dt, params)
+                    if check <= CHECK_LIMIT:
+                        st.pade_accepted += 1
+                        return self._accepted(d_end, a_pade, p, r_end)
             if not fresh:  # stale K*: refactorise at the current point and redo the series
                 self.fact = None
                 continue
             if not np.all(np.isfinite(coeffs)):
                 raise NonFiniteError("series coefficients are not finite with a fresh K*", step=step, t=t,
                                      amax=amax, residual_norm=r0_norm)
-            if substeps >= self.opts.max_substeps or amax < 1e-12:
+            if substeps >= self.opts.max_substeps or max(amax, a_pade) < 1e-12:
                 raise StepFailure(f"series from a fresh K* cannot reach a = 1 after {substeps} "
                                   f"continuation sub-steps (max_substeps = {self.opts.max_substeps})",
                                   step=step, t=t, amax=amax, residual_norm=r0_norm)
             substeps += 1
             st.substeps += 1  # counted when taken (a refused sub-step is a failure, not a sub-step)
-            d_s = d_s + evaluate_series(coeffs, amax)  # continuation: restart the homotopy there
+            # continuation: restart the homotopy at the farther trusted point
+            if approx is None or a_pade <= amax:
+                d_s = d_s + evaluate_series(coeffs, amax)
+            elif a_pade < 1.0:
+                d_s = d_s + _pade.evaluate(approx, a_pade)
+            elif distance < P.norm(coeffs[0]):  # the approximant's end point failed its check but is
+                d_s, r_next = d_end, r_end  # closer to the solution than the start (as for a series)
+            else:
+                d_s = d_s + evaluate_series(coeffs, amax)
             fresh = False
 
     def _accept_early(self, coeffs, d_s, x_old, t, dt, params):
@@ -437,6 +479,14 @@ class _ANMStepper:
         if check > CHECK_LIMIT:
             return None
         return self._accepted(d_end, amax, coeffs.shape[0], r_end)
+
+    def _pade_range(self, coeffs, d_s):
+        """The Padé approximant of the order-p series and its validity range (searched up to
+        a = 1, by this solver's tolerance and criterion): ``(approx, a_pade)``."""
+        approx = _pade.approximant(coeffs, self.problem.scale)
+        a_pade = _pade.validity_range(approx, self.opts.tol, limit=1.0,
+                                      state=d_s if self.opts.criterion == "state" else None)
+        return approx, a_pade
 
     def _validity_range(self, coeffs, d_s) -> float:
         """a_max of the series ``coeffs`` from ``d_s`` by this solver's criterion."""

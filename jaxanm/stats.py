@@ -16,11 +16,14 @@ class Stats:
     Counters are totals over the run.  ``series_orders`` counts evaluations of the jet
     series (one per order and per series); ``residual_evaluations`` counts plain residual
     evaluations (series evaluations excluded).  ``resumes`` counts continuations from a
-    checkpoint (each re-factorises the stored K* once, not counted in ``factorizations``).  ``amax`` holds, for ANM, the validity range
-    of the accepted series of each time step and ``orders`` the order of that series (the
-    maximum order unless the ANM is order-adaptive); ``residual_norm`` the max-norm of the step
-    residual at each accepted state.  ``wall_time`` splits ``wall_time_s`` into
-    ``jacobian``, ``factorize``, ``series``, ``solve`` (triangular solves) and ``other``.
+    checkpoint (each re-factorises the stored K* once, not counted in ``factorizations``).
+    ``pade_accepted`` counts the ANM series accepted through their Padé approximant
+    (``ANM(pade=True)``).  ``amax`` holds, for ANM, the validity range of the accepted series
+    of each time step (for one accepted through its Padé approximant, the approximant's range)
+    and ``orders`` the order of that series (the maximum order unless the ANM is
+    order-adaptive); ``residual_norm`` the max-norm of the step residual at each accepted
+    state.  ``wall_time`` splits ``wall_time_s`` into ``jacobian``, ``factorize``, ``series``,
+    ``solve`` (triangular solves) and ``other``.
     """
 
     factorizations: int = 0
@@ -30,6 +33,7 @@ class Stats:
     residual_evaluations: int = 0
     newton_iterations: int = 0
     substeps: int = 0
+    pade_accepted: int = 0
     dt_halvings: int = 0
     resumes: int = 0
     amax: list = dataclasses.field(default_factory=list)

@@ -108,6 +108,12 @@ def test_shorthands_and_set_overrides_reach_the_scene(tiny, tmp_path, fake_run, 
     assert no_files["solver_settings"]["kind"] == "modified_newton"
 
 
+def test_set_switches_the_pade_option(tiny, tmp_path, fake_run, no_files):
+    argv = ["run", str(tiny), "--set", "solver.pade=true", "--out", str(tmp_path), "--no-progress"]
+    assert cli.main(argv) == 0
+    assert fake_run["scene"].solver.pade is True and fake_run["scene"].solver.make().pade is True
+
+
 def test_shorthand_wins_over_set(tiny, tmp_path, fake_run, no_files):
     argv = ["run", str(tiny), "--set", "solver.order=9", "--order", "5", "--out", str(tmp_path),
             "--no-progress"]
@@ -149,6 +155,7 @@ def test_progress_bar_tracks_simulated_time():
     (["run", "{tiny}", "--set", "material.nope=1"], "override key"),
     (["run", "{tiny}", "--set", "material.K=abc"], "material.K"),
     (["run", "{tiny}", "--tol", "2"], "solver.tol"),
+    (["run", "{tiny}", "--set", "solver.pade=maybe"], "solver.pade"),
     (["run", "{tiny}", "--t-end", "-1"], "time.t_end"),
     (["run", "{tiny}", "--t-end", "soon"], "argument --t-end: invalid float value"),
     (["run", "{tiny}", "--solver", "rk4"], "argument --solver: invalid choice"),

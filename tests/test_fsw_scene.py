@@ -61,8 +61,20 @@ def test_overrides_parse_strings_and_validate():
     assert isinstance(s.solver.make(), jaxanm.Newton)
     assert s.time.save == (0.1, 0.2)
     for key in ("material.K", "material.A", "material.n", "material.eps0", "mechanics.penalty",
-                "tool.omega", "geometry.dr", "time.dt", "time.t_end", "effects"):
+                "tool.omega", "geometry.dr", "time.dt", "time.t_end", "effects", "solver.adaptive",
+                "solver.pade"):
         assert key in override_keys()
+
+
+def test_solver_switches_reach_the_anm_options():
+    """``solver.adaptive`` and ``solver.pade`` (TOML booleans, or true/false strings from --set)."""
+    s = load_scene("fsw_small")
+    assert s.solver.make() == jaxanm.ANM(order=s.solver.order, tol=s.solver.tol, criterion=s.solver.criterion,
+                                         max_substeps=s.solver.max_substeps)
+    t = s.with_overrides({"solver.pade": "true", "solver.adaptive": "True"})
+    assert t.solver.pade is True and t.solver.adaptive is True
+    assert t.solver.make().pade is True and t.solver.make().adaptive is True
+    assert s.with_overrides({"solver.pade": False}).solver.make().pade is False
 
 
 @pytest.mark.parametrize("overrides, field, allowed", [
@@ -77,6 +89,9 @@ def test_overrides_parse_strings_and_validate():
     ({"mechanics.penalty": -1}, "mechanics.penalty", ">= 0"),
     ({"geometry.layout": "hex"}, "geometry.layout", "polar"),
     ({"solver.kind": "bdf"}, "solver.kind", "anm"),
+    ({"solver.pade": "yes"}, "solver.pade", "true or false"),
+    ({"solver.pade": "true", "solver.order": 2}, "solver.pade", "solver.order >= 3"),
+    ({"solver.adaptive": 1}, "solver.adaptive", "true or false"),
     ({"effects": "viscous,magic"}, "effects", "known effects"),
     ({"effects": "dissipation,conduction"}, "effects", "needs ['viscous']"),
     ({"effects": "viscous,lagrangian,tracers"}, "effects", "exclude each other"),

@@ -353,8 +353,9 @@ class Time(_Section):
 class SolverSpec(_Section):
     """Nonlinear step solver: ``kind`` in ``anm | newton | modified_newton``, ``tol``; ANM ``order``,
     ``criterion`` (``increment``: the paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`),
-    ``max_substeps``, ``adaptive`` (order-adaptive series, ``order`` the maximum) and ``homotopy``
-    (``convex``: the paper's eq. 22, or ``newton``: see :class:`jaxanm.ANM`)."""
+    ``max_substeps``, ``adaptive`` (order-adaptive series, ``order`` the maximum), ``homotopy``
+    (``convex``: the paper's eq. 22, or ``newton``: see :class:`jaxanm.ANM`) and ``pade`` (accept
+    series through their Padé approximant, :class:`jaxanm.ANM`; needs ``order >= 3``)."""
 
     _name = "solver"
     kind: str = "anm"
@@ -364,6 +365,7 @@ class SolverSpec(_Section):
     max_substeps: int = 50
     adaptive: bool = False
     homotopy: str = "convex"
+    pade: bool = False
 
     def _validate(self):
         _check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
@@ -376,6 +378,9 @@ class SolverSpec(_Section):
         _check("solver.homotopy", self.homotopy, self.homotopy in ("convex", "newton"),
                "must be 'convex' (the paper's eq. 22) or 'newton'")
         _check("solver.max_substeps", self.max_substeps, self.max_substeps >= 0, "must be an integer >= 0")
+        _check("solver.pade", self.pade, not (self.pade and self.kind == "anm" and self.order < 3),
+               f"needs solver.order >= 3, got {self.order} (the Padé range compares the approximants of orders "
+               "p and p - 1; for p = 2 the lower one is the start point)")
 
     def make(self):
         """The :mod:`jaxanm` solver options object (``jaxanm.ANM``, ``Newton`` or ``ModifiedNewton``)."""
@@ -383,7 +388,8 @@ class SolverSpec(_Section):
 
         if self.kind == "anm":
             return jaxanm.ANM(order=self.order, tol=self.tol, criterion=self.criterion,
-                              max_substeps=self.max_substeps, adaptive=self.adaptive, homotopy=self.homotopy)
+                              max_substeps=self.max_substeps, adaptive=self.adaptive, homotopy=self.homotopy,
+                              pade=self.pade)
         if self.kind == "newton":
             return jaxanm.Newton(tol=self.tol)
         return jaxanm.ModifiedNewton(tol=self.tol)
