@@ -120,11 +120,11 @@ def _weight(x, y, mask, c, q):
     ``r^2 = |xi - x_j|^2`` gives ``r^2_,i = -2 x_ji`` and ``r^2_,ij = 2 delta_ij`` at ``xi = 0``;
     with ``t = r^2 / c^2``, ``g_,i = q t^(q-1) t_,i`` and
     ``g_,ij = q (q-1) t^(q-2) t_,i t_,j + q t^(q-1) t_,ij``.  Integer powers of r^2: smooth at
-    r = 0 (the node under xi).  ``w`` is 0 outside the support (r^2 > 1) and at padding.
+    r = 0 (the node under xi).  ``w`` is 0 where ``mask`` is False: padding, and nodes outside
+    the support r^2 <= 1, which the caller decides (:func:`_stencils`).
     """
-    r2 = x * x + y * y
-    t = r2 / c**2
-    w = jnp.where(mask & (r2 <= 1.0), jnp.exp(-(t**q)), 0.0)
+    t = (x * x + y * y) / c**2
+    w = jnp.where(mask, jnp.exp(-(t**q)), 0.0)
     tx, ty, tii = -2.0 * x / c**2, -2.0 * y / c**2, 2.0 / c**2
     d1 = q * t ** (q - 1) if q > 1 else 1.0
     d2 = q * (q - 1) * t ** (q - 2) if q > 1 else 0.0
@@ -249,8 +249,8 @@ def _kernel(local, mask, h, c, q):
     the equilibrated moment matrices (n, 6, 6) and a finite flag (n,).
 
     ``local`` (n, m, 2): node coordinates relative to each evaluation point, divided by its
-    ``h`` (n,); ``mask`` (n, m): real (not padding) entries.  Called by :func:`_run_kernel`
-    with n = ``CHUNK``.
+    ``h`` (n,); ``mask`` (n, m): real (not padding) entries within the support (r <= 1).
+    Called by :func:`_run_kernel` with n = ``CHUNK``.
     """
     phi, px, py, pxx, pxy, pyy, moments = _shape_functions(local[..., 0], local[..., 1], mask, c, q)
     h1 = h[:, None]
@@ -506,7 +506,11 @@ def _stencils(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None
             )
 
     local = (nodes[index] - centers[:, None, :]) / h[:, None, None]
-    phi, dx, dy, dxx, dxy, dyy, moments, finite = _run_kernel(local, mask, h, float(c), int(q), derivatives)
+    # The support r <= 1 in the scaled coordinates is decided here, in numpy (two roundings,
+    # no fused multiply-add): inside the jitted kernel XLA may contract x*x + y*y into an FMA,
+    # and for nodes at h to round-off (the polar cloud's rings) the two roundings disagree.
+    inside = mask & (local[..., 0] * local[..., 0] + local[..., 1] * local[..., 1] <= 1.0)
+    phi, dx, dy, dxx, dxy, dyy, moments, finite = _run_kernel(local, inside, h, float(c), int(q), derivatives)
     rcond = _condition_screen(moments)
     bad = np.flatnonzero(~(finite & (rcond >= RCOND_MIN)))
     if bad.size:
