@@ -71,9 +71,10 @@ M_MAX_MULTIPLE = 8
 CHUNK = 128
 """Evaluation points per call of the compiled kernel (the last call is padded).
 
-128 keeps a call's working set in the L2 cache: on fsw_paper (881 points, m = 32) the kernel
-executes in 9 ms with 128 per call against 15 ms with 512 and 18 ms with 1024 (one core,
-issue 14)."""
+128 kept the forward-mode kernel's working set in the L2 cache (on fsw_paper, 881 points,
+m = 32: 9 ms with 128 per call against 15 ms with 512 and 18 ms with 1024, one core, issue 14).
+For the closed-form kernel the size hardly matters (fsw_paper, interleaved medians at load 3.3:
+11.0, 9.8 and 10.0 ms with 128, 512 and 1024 per call); 128 pads small N the least."""
 
 RCOND_MIN = 1e-10
 """Smallest accepted reciprocal condition number of the equilibrated moment matrix.
