@@ -576,7 +576,7 @@ def evaluate_at(points, h, targets, m_max=None, c=0.2, q=1, derivatives=True, ne
     nodal-parameter field ``f`` (N,) at the targets is ``value(st, f)``.  Padding entries repeat
     the index of the target's nearest node, with zero weights.  ``m_max`` as in
     :func:`build_stencils` (default from the targets' neighbour counts).  ``derivatives=False``
-    computes only ``phi`` (10x cheaper; the same values): the stencils' ``dx`` ... ``dyy`` are
+    computes only ``phi`` (2x cheaper; the same values): the stencils' ``dx`` ... ``dyy`` are
     then None, for :func:`value` only.  ``neighbours``: a :class:`NeighbourList` kept for
     moving targets on a moving cloud (e.g. material points), used instead of a new cKDTree.
     """
