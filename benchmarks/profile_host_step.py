@@ -157,8 +157,22 @@ CHANGES = """\
 - **MLS kernel**: chunks of 128 points instead of 512 (the call's working set stays in L2:
   9 vs 15 ms on one core), passed to the jitted kernel as numpy; the rcond check by the bound
   det / trace^6 (0.5 ms) and eigenvalues only where it does not decide (2.2 ms before).  The
-  kernel itself (nested `jax.jacfwd` of the 6x6 solve in `mls._kernel`, another engineer's
-  function) is what is left: ~9 ms on an idle core, more under load.
+  kernel itself (nested `jax.jacfwd` of the 6x6 solve in `mls._kernel`) was then what was left:
+  ~9 ms on an idle core, more under load.
+- **MLS kernel, closed form** (label 'closed-form MLS', issue 14 item 1 / issue 13 item 2): the
+  derivatives of `A gamma = p` written out and solved through a CholeskyQR2 factorisation of
+  the equilibrated `sqrt(W) P` (one per point, 6 right-hand sides) instead of autodiff of an
+  elimination on `A`: about 2.5x faster than the jacfwd kernel measured back to back, and more
+  accurate (at most 2.3 digits lost against a 50-digit reference where the normal equations
+  lost 6.1, rcond down to 1e-6).  The support r <= 1 is decided in numpy, outside the jitted
+  kernel (XLA contracted x*x + y*y into an FMA, which moved a node at h to round-off in or out
+  of the polar cloud's stencils).  `jaxanm run fsw_paper --t-end 0.005` against the code of
+  5caeaad: u, v within 3.1e-15, T 7.7e-13 of its rise, probes 7.4e-13 K; same step, series
+  and factorisation counts.  The value-only stencils (markers) take phi from the same
+  factorisation, so they keep the full stencils' values; that costs more than the old
+  elimination on A (values at the markers 19.0 -> 21.7 ms here, the value-only kernel ~1.3x
+  in interleaved runs).  The whole stencil rebuild (17.7 ms at load 3.4) is not yet within
+  the 5 ms aimed at: the kernel's ~200 small XLA fusions per call dominate.
 - **refit** (`model.Refit`): preconditioned Richardson iterations on the previous SuperLU of
   the value matrix, stopped when the estimated remaining error is below 1e-15 of max |x| per
   field (the direct solve's own error is cond eps, cond ~ 3); 5-7 iterations (contraction

@@ -1,12 +1,17 @@
 """Tests of jaxanm.mls: MLS stencils against independent references.
 
 References: exact polynomial reproduction (quadratic fields), analytic derivatives of a smooth
-field with fitted convergence slopes, partition of unity, and direct sums for the helpers.
+field with fitted convergence slopes, partition of unity, direct sums for the helpers, the
+forward-mode autodiff kernel the closed form replaced, and a 50-digit evaluation of the MLS
+formulas.
 The compiled kernel depends on the stencil width only; the tests share m = 40 (one compilation)
 to keep the file fast.
 """
 
 from __future__ import annotations
+
+import decimal
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -93,9 +98,11 @@ def test_quadratic_fields_reproduced(clouds, cloud):
             assert err[interior].max() <= 1e-10 * scale, (cloud, name)
             # Edge points have one-sided supports under the narrow c = 0.2 Gaussian: their
             # moment matrices have rcond ~ 5e-5 (regular) to ~ 1e-6 (jittered), and they lose
-            # those digits (measured: second derivatives 1e-8 / 1e-6 relative, first 1e-11 /
-            # 2e-10).  (Diffuse derivatives, which drop the derivatives of the weight, would
-            # reproduce quadratics too: test_derivatives_are_those_of_phi tells them apart.)
+            # about half those digits (measured: second derivatives 2e-11 / 2e-10 relative, first
+            # 1e-14 / 5e-14; the normal-equation kernel before the closed form lost all of them:
+            # 1e-8 / 1e-6 and 1e-11 / 2e-10).  (Diffuse derivatives, which drop the derivatives
+            # of the weight, would reproduce quadratics too: test_derivatives_are_those_of_phi
+            # tells them apart.)
             bound = {"phi": 1e-13, "dx": 1e-8, "dy": 1e-8}.get(name, 1e-4)
             assert err.max() <= bound * scale, (cloud, name)
 
@@ -125,6 +132,10 @@ def reciprocal_condition(points, st, c=0.2):
 # an error of the same size: 2 x 18 = 36 eps / rcond, relative to sum |w| (the terms summed).
 # Edge points with one-sided supports have rcond down to 1e-6 (mls.RCOND_MIN's note), where a
 # fixed bound of 1e-10 failed on a CPU without AVX-512 (issue 13: 2.8e-2 against 2.3e-2).
+# The closed-form kernel solves through a QR factorisation of sqrt(W) P instead, whose
+# condition number is rcond^(-1/2): the same constant over sqrt(rcond) bounds its error
+# (QR_ERROR, test_closed_form_against_50_digits); SOLVE_ERROR still bounds the reference
+# kernel's (test_closed_form_matches_the_autodiff_kernel) and, being larger, the sums here.
 SOLVE_ERROR = 36 * np.finfo(np.float64).eps
 
 
@@ -206,6 +217,152 @@ def test_derivatives_are_those_of_phi(clouds):
     for name, ref in fd.items():
         tol = 1e-7 if name in ("dx", "dy") else 1e-5
         assert np.abs(at[name] - ref).max() <= tol * np.abs(ref).max(), name
+
+
+# The kernel before the closed form, kept here as a reference (not in the package): phi(xi) by
+# Gauss-Jordan elimination of the equilibrated normal equations, derivatives by nested jacfwd.
+def _reference_shape_functions(xi, nodes, mask, c, q, s):
+    d = xi - nodes
+    r2 = jnp.sum(d * d, axis=-1)
+    w = jnp.where(mask & (r2 <= 1.0), jnp.exp(-((r2 / c**2) ** q)), 0.0)
+    basis = lambda X: jnp.stack([jnp.ones_like(X[..., 0]), X[..., 0], X[..., 1], X[..., 0] ** 2,  # noqa: E731
+                                 X[..., 0] * X[..., 1], X[..., 1] ** 2], axis=-1)
+    P = basis(nodes)
+    B = P.T * w
+    M = jnp.concatenate([(B @ P) * s[:, None] * s[None, :], (s * basis(xi))[:, None]], axis=1)
+    for k in range(6):
+        pivot_row = M[k] / M[k, k]
+        M = (M - jnp.outer(M[:, k], pivot_row)).at[k].set(pivot_row)
+    return (s * M[:, -1]) @ B
+
+
+@functools.partial(jax.jit, static_argnames=("q",))
+def _reference_kernel(local, mask, c, q):
+    """(phi, gradient (n, m, 2), Hessian (n, m, 2, 2)) in scaled local coordinates."""
+    def row(nodes, m):
+        x0 = jnp.zeros(2)
+        r2 = jnp.sum(nodes**2, axis=-1)
+        w = jnp.where(m & (r2 <= 1.0), jnp.exp(-((r2 / c**2) ** q)), 0.0)
+        P = jnp.stack([jnp.ones_like(r2), nodes[:, 0], nodes[:, 1], nodes[:, 0] ** 2,
+                       nodes[:, 0] * nodes[:, 1], nodes[:, 1] ** 2], axis=-1)
+        s = 1.0 / jnp.sqrt(jnp.diagonal((P.T * w) @ P))
+        shape = lambda xi: _reference_shape_functions(xi, nodes, m, c, q, s)  # noqa: E731
+        return shape(x0), jax.jacfwd(shape)(x0), jax.jacfwd(jax.jacfwd(shape))(x0)
+    return jax.vmap(row)(local, mask)
+
+
+def kernel_inputs(points, st):
+    """Scaled local node coordinates (n, m, 2) and the real-entry mask of a cloud's stencils."""
+    index = np.asarray(st.index)
+    real = np.ones(index.shape, dtype=bool)
+    real[:, 1:] = index[:, 1:] != np.arange(len(points))[:, None]
+    return (points[index] - points[:, None, :]) / H, real
+
+
+def scaled(st, rows=slice(None)):
+    """The stencils' six weight arrays in scaled local coordinates (derivatives times h, h^2)."""
+    return [np.asarray(getattr(st, name))[rows] * H ** order for name, order in zip(NAMES, (0, 1, 1, 2, 2, 2))]
+
+
+@pytest.mark.parametrize("cloud", ["regular", "jittered"])
+def test_closed_form_matches_the_autodiff_kernel(clouds, cloud):
+    """The closed-form weights against jacfwd of the elimination they replaced, per point.
+
+    The reference's own error is up to SOLVE_ERROR / rcond of sum |w| (the bound of
+    test_partition_of_unity, which it passed); the closed form's is far smaller (QR_ERROR /
+    sqrt(rcond)), so the two differ by at most their sum.
+    """
+    points, st = clouds[cloud]
+    local, real = kernel_inputs(points, st)
+    with jax.enable_x64(True):
+        phi, grad, hess = (np.asarray(a) for a in _reference_kernel(local, real, 0.2, 1))
+    ref = [phi, grad[..., 0], grad[..., 1], hess[..., 0, 0], hess[..., 0, 1], hess[..., 1, 1]]
+    rcond = reciprocal_condition(points, st)
+    bound = (SOLVE_ERROR / rcond + QR_ERROR / np.sqrt(rcond))
+    for name, got, want in zip(NAMES, scaled(st), ref):
+        err = np.abs(got - want).max(axis=1)
+        assert np.all(err <= bound * np.abs(want).sum(axis=1)), (cloud, name)
+
+
+# A QR factorisation of V = sqrt(W) P S is backward stable, and the weights computed through it
+# have a forward error of about c n eps cond(V), cond(V) = rcond^(-1/2), relative to sum |w|:
+# with n = 6 and the derivatives' two extra stages, the same 36 eps constant as SOLVE_ERROR
+# (measured at most 3.4 eps / sqrt(rcond) on these clouds, rcond down to 1e-6).
+QR_ERROR = SOLVE_ERROR
+
+
+def _decimal_weights(local, real, c=0.2):
+    """phi and its derivatives at xi = 0 (6, m), scaled local coordinates, in 50-digit decimal
+    arithmetic: normal equations A gamma_,.. = p_,.. - ... (partial pivoting) for q = 1, straight
+    from the MLS formulas -- the 35 digits left after cond(A) <= 1e6 make it exact to double."""
+    D = decimal.Decimal
+    with decimal.localcontext() as ctx:
+        ctx.prec = 50
+        X = [(D(float(a)), D(float(b))) for a, b in local]
+        c2 = D(float(c)) ** 2
+        P = [[D(1), x, y, x * x, x * y, y * y] for x, y in X]
+        w, dw = [], []  # w and its xi-derivatives (x, y, xx, xy, yy); g = r^2 / c^2
+        for (x, y), ok in zip(X, real):
+            if not (ok and x * x + y * y <= 1):
+                w.append(D(0)), dw.append([D(0)] * 5)
+                continue
+            wj = (-(x * x + y * y) / c2).exp()
+            gx, gy, gii = -2 * x / c2, -2 * y / c2, 2 / c2
+            w.append(wj)
+            dw.append([-wj * gx, -wj * gy, wj * (gx * gx - gii), wj * gx * gy, wj * (gy * gy - gii)])
+        moment = lambda ws: [[sum(wj * p[a] * p[b] for wj, p in zip(ws, P)) for b in range(6)]  # noqa: E731
+                             for a in range(6)]
+        A, dA = moment(w), [moment([d[k] for d in dw]) for k in range(5)]
+
+        def solve(rhs):
+            M = [row[:] + [r] for row, r in zip(A, rhs)]
+            for k in range(6):
+                piv = max(range(k, 6), key=lambda i: abs(M[i][k]))
+                M[k], M[piv] = M[piv], M[k]
+                for i in range(k + 1, 6):
+                    f = M[i][k] / M[k][k]
+                    M[i] = [a - f * b for a, b in zip(M[i], M[k])]
+            x = [D(0)] * 6
+            for i in reversed(range(6)):
+                x[i] = (M[i][6] - sum(M[i][j] * x[j] for j in range(i + 1, 6))) / M[i][i]
+            return x
+
+        def rhs(k, *terms):  # 2^(k in (3, 5)) e_k minus sum of coefficient * dA[d] @ gamma
+            e = [D(2 if k in (3, 5) else 1) if i == k else D(0) for i in range(6)]
+            return [e[a] - sum(f * sum(dA[d][a][b] * g[b] for b in range(6)) for f, d, g in terms)
+                    for a in range(6)]
+        g = solve(rhs(0))
+        gx, gy = solve(rhs(1, (1, 0, g))), solve(rhs(2, (1, 1, g)))
+        gxx = solve(rhs(3, (2, 0, gx), (1, 2, g)))
+        gxy = solve(rhs(4, (1, 0, gy), (1, 1, gx), (1, 3, g)))
+        gyy = solve(rhs(5, (2, 1, gy), (1, 4, g)))
+        dot = lambda p, v: sum(a * b for a, b in zip(p, v))  # noqa: E731
+        out = np.zeros((6, len(X)))
+        for j, (p, wj, (wx, wy, wxx, wxy, wyy)) in enumerate(zip(P, w, dw)):
+            p0, px, py = dot(p, g), dot(p, gx), dot(p, gy)
+            out[:, j] = [float(v) for v in (
+                wj * p0, wx * p0 + wj * px, wy * p0 + wj * py,
+                wxx * p0 + 2 * wx * px + wj * dot(p, gxx),
+                wxy * p0 + wx * py + wy * px + wj * dot(p, gxy),
+                wyy * p0 + 2 * wy * py + wj * dot(p, gyy))]
+    return out
+
+
+def test_closed_form_against_50_digits(clouds):
+    """At the 12 worst-conditioned points of the jittered cloud (rcond 1e-6 .. 1e-4, one-sided
+    edge supports) and 4 interior ones, each weight array within QR_ERROR / sqrt(rcond) of
+    sum |w| of a 50-digit evaluation (the normal-equation kernel lost up to 6 digits there)."""
+    points, st = clouds["jittered"]
+    local, real = kernel_inputs(points, st)
+    rcond = reciprocal_condition(points, st)
+    order = np.argsort(rcond)
+    rows = np.r_[order[:12], order[-4:]]
+    got = scaled(st, rows)
+    for k, i in enumerate(rows):
+        ref = _decimal_weights(local[i], real[i])
+        for name, w, want in zip(NAMES, got, ref):
+            err = np.abs(w[k] - want).max()
+            assert err <= QR_ERROR / np.sqrt(rcond[i]) * np.abs(want).sum(), (i, rcond[i], name)
 
 
 def field(x, y):
