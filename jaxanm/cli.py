@@ -4,6 +4,7 @@
 
     jaxanm run [SCENE] [--t-end S] [--solver anm|newton|mnewton] [--order P] [--tol X]
                [--set KEY=VALUE ...] [--out DIR] [--checkpoint-every N] [--no-progress]
+               [--no-compile-cache]
     jaxanm run --resume DIR [--checkpoint-every N] [--no-progress]
     jaxanm scenes
 
@@ -22,6 +23,9 @@ uninterrupted run (bit-identical fields on the same machine).  Options given wit
 must agree with the stored scene (else exit 2 naming the differing fields).  An interrupted or
 failed run also writes the results of the steps done so far into DIR.
 
+Compiled XLA code is kept on disk for later runs (:mod:`jaxanm.compile_cache`) unless
+``--no-compile-cache`` or ``JAXANM_COMPILE_CACHE=0``.
+
 Exit status: 0 on success, 2 on bad input (unknown scene, malformed ``--set``, invalid value,
 unusable checkpoint; one ``jaxanm: error: ...`` line on stderr, no traceback), 1 when the
 solver fails or the results cannot be written, 130 when interrupted.
@@ -35,6 +39,7 @@ import sys
 import time
 from pathlib import Path
 
+from jaxanm import compile_cache
 from jaxanm.errors import InputError, SingularMatrixError, StepFailure
 
 PROG = "jaxanm"
@@ -88,6 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"continue the run whose {CHECKPOINT_NAME} is in DIR (scene and solver "
                      "come from the checkpoint; results go to DIR)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.add_argument("--no-compile-cache", action="store_true",
+                     help="do not keep compiled XLA code on disk for later runs (default: kept in "
+                     "$JAXANM_COMPILE_CACHE_DIR or ~/.cache/jaxanm; JAXANM_COMPILE_CACHE=0 also turns it off)")
     run.set_defaults(func=_cmd_run)
 
     scenes = sub.add_parser("scenes", help="list the shipped scenes",
@@ -250,6 +258,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
             raise UsageError(str(exc)) from exc
         out_dir = args.out or Path("results") / f"{scene.name}-{scene.solver.kind}"
         every = args.checkpoint_every or 0
+    if not args.no_compile_cache and compile_cache.requested():
+        compile_cache.enable()
     checkpointing = {}
     if every or args.resume is not None:
         checkpointing = {"checkpoint": out_dir / CHECKPOINT_NAME, "checkpoint_every": every,
