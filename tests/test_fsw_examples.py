@@ -119,4 +119,7 @@ def test_effects_example(capsys):
     # an MLS sum of those T0s: 1 to within the partition-of-unity round-off, 36 eps / rcond
     # (tests/test_mls.py) with rcond >= 5e-5 at the tool-edge points of a regular cloud
     assert abs(no_tc["T_tool"] - T0) <= 36 * np.finfo(float).eps / 5e-5 * T0
-    assert T0 < tc["T_tool"] <= tc["T_plate"] < no_tc["T_plate"]
+    # T_tool = T_plate is the tool-edge row: the two MLS values agree to the partition-of-unity
+    # round-off bounded on the line above, not bit for bit
+    assert T0 < tc["T_tool"] <= tc["T_plate"] + 36 * np.finfo(float).eps / 5e-5 * T0
+    assert tc["T_plate"] < no_tc["T_plate"]
