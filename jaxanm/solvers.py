@@ -113,6 +113,9 @@ class SeriesPath:
         return r
 
 
+_NOT_LOOKED_UP = object()
+
+
 class Problem:
     """The discrete step problem as the solvers see it (residual, series, tangent, scale)."""
 
@@ -127,14 +130,14 @@ class Problem:
         self._sparse = None
         self._pattern_key = None
         self._dense = dense_jacobian_function(residual) if jacobian == "dense" else None
-        self._affine = None  # (found, AffineFunctions or None): the layout is fixed within a run
+        self._affine = _NOT_LOOKED_UP  # AffineFunctions or None once looked up: a run keeps its layout
 
     def affine_functions(self, d_s, args):
         """The residual's affine-split series functions for this run's argument layout (looked
         up once: a run keeps its shapes and dtypes), or None when it cannot be split."""
-        if self._affine is None:
-            self._affine = (True, _affine_functions(self._raw_residual, d_s, args))
-        return self._affine[1]
+        if self._affine is _NOT_LOOKED_UP:
+            self._affine = _affine_functions(self._raw_residual, d_s, args)
+        return self._affine
 
     def residual(self, x, x_old, t, dt, params) -> np.ndarray:
         """Step residual on the host."""
