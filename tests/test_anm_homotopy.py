@@ -74,7 +74,7 @@ def test_newton_homotopy_with_stale_kstar_follows_its_exact_path_within_amax():
     k, p, tol = 1.5, 12, 1e-8
     coeffs = _series(k, p, pad=False)
     amax = jaxanm.validity_range(coeffs[:, None], np.ones(1), tol)
-    assert 0.2 < amax < np.inf
+    assert 0.2 < amax < np.inf  # (tol |c_1| / |c_12|)^(1/11) of the closed-form path: 0.83
     for a in (0.25 * min(amax, 1.0), 0.5 * min(amax, 1.0), min(amax, 1.0)):
         exact = _stale_path(k, a)
         assert abs(S + evaluate_series(coeffs[:, None], a)[0] - exact) <= 10 * tol * abs(coeffs[0])
@@ -83,8 +83,11 @@ def test_newton_homotopy_with_stale_kstar_follows_its_exact_path_within_amax():
 def test_newton_homotopy_gains_an_order_of_the_increment_per_order():
     """The convex homotopy's order j takes the nonlinear terms of order j - 1, so with a fresh
     K* c_2 vanishes and the series needs about twice the orders of the Newton homotopy for the
-    same decay.  With z = 1 - b/s^2 = 0.4, the Newton path's terms fall by about z/2 per order:
-    |c_7 / c_1| ~ 3e-4, which the convex series' c_7 does not reach."""
+    same decay.  Both ratios are closed forms, computed to round-off (the test above), so the
+    margins below are exact, not measured: with z = 1 - b/s^2 = 0.4 the Newton path's
+    |c_7 / c_1| = |binom(1/2, 7) / binom(1/2, 1)| z^6 = 1.32e-4; the convex series from K* = 2 s
+    obeys c_j = -(1/2) sum_{i+k=j-1} c_i c_k (c_1 = -0.2, c_3 = -0.02, c_5 = -0.004,
+    c_7 = -0.001), so |c_7 / c_1| = 5e-3, 38 times the Newton path's."""
     newton = _series(2 * S, 7, pad=False)
     assert abs(newton[6] / newton[0]) < 1e-3
     problem = Problem(_residual, np.ones(1), jaxanm.Stats(), "dense", None)
