@@ -4,11 +4,10 @@ For each order p and each way of feeding jet, in a fresh subprocess (so that eve
 cold and the peak memory is that variant's), on the state after ``--warm`` Newton steps of a
 Lagrangian run (``benchmarks/profile_host_step.warm_state``):
 
-- ``padded``: one jet compiled for every order up to p (the fixed-order ANM; zeros for the
-  coefficients not known yet): compile time of that one jet, and the time of the p - 1 calls of
-  one series;
-- ``truncated``: one jet per order, truncated at the terms known (the order-adaptive ANM):
-  compile time of all of them, and the time of the p - 1 calls of one series;
+- ``truncated``: one jet per order, truncated at the terms known (what both modes of the ANM
+  do since 2026-12-02): compile time of all of them, and the time of the p - 1 calls of one
+  series.  (The zero-padded single jet the fixed-order ANM used before is no longer in the
+  engine; its rows in docs/series_cost.md were measured with commit cb06729.)
 
 both for the convex homotopy (the residual's coefficient ``[R]_{j-1}`` at order j) and the
 Newton homotopy (``[R]_j`` with the provisional ``c_j = c_{j-1}``, one more term), with the
@@ -54,10 +53,8 @@ def measure(order: int, mode: str, homotopy: str, repeats: int, warm: int) -> di
         cs = [1e-4 * model.scale() * rng.standard_normal(x.size) for _ in range(order - 1)]
         t0 = time.perf_counter()
         fns = _affine_functions(model.residual, x, args)
-        pad = None if mode == "truncated" else order - 1 + lookahead
-
         def series():
-            path = AffinePath(fns, x, args, pad_to=pad, lookahead=lookahead)
+            path = AffinePath(fns, x, args, lookahead=lookahead)
             for c in cs:
                 path.next(c)
 
@@ -78,7 +75,7 @@ def measure(order: int, mode: str, homotopy: str, repeats: int, warm: int) -> di
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--orders", default="5,7,10,15,20")
-    ap.add_argument("--modes", default="padded,truncated")
+    ap.add_argument("--modes", default="truncated")
     ap.add_argument("--homotopies", default="convex,newton")
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--warm", type=int, default=3)

@@ -72,7 +72,7 @@ def exact_solution(P: Problem, x_old, args) -> np.ndarray:
 def series(P: Problem, fact, d_s, args, homotopy: str, orders: int) -> np.ndarray:
     """Coefficients c_1 .. c_orders of the ANM series from ``d_s`` with K* = ``fact``."""
     newton = homotopy == "newton"
-    path = SeriesPath(P, d_s, args, pad_to=None, lookahead=newton)
+    path = SeriesPath(P, d_s, args, lookahead=newton)
     coeffs = [-fact.solve(path.start_residual())]
     for _ in range(2, orders + 1):
         coeffs.append(coeffs[-1] - fact.solve(path.next(coeffs[-1])))

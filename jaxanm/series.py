@@ -71,40 +71,28 @@ class AffinePath:
 
     The frontier values (stencil sums and the like, affine in x) have coefficients ``A c_k``:
     one linear map (a ``jax.jvp`` of the affine part) per new ``c_k``, computed once and kept.
-    Only the non-affine rest is expanded by ``jet``, from the kept frontier coefficients.
-    :meth:`next` appends ``c_k`` and returns ``f_k``.  ``pad_to=None`` truncates the jet at the
-    k terms known (one compiled jet per order, O(k^2) work at order k); ``pad_to=K`` expands
-    with K terms, zeros for the unknown ones (one compiled jet for every order up to K).
+    Only the non-affine rest is expanded by ``jet``, from the kept frontier coefficients,
+    truncated at the k terms known: one compiled jet per order, O(k^2) work at order k, so a
+    series of order p costs O(p^2) jet terms.  (Padding every order to p - 1 terms with zeros
+    would compile one jet for all orders but cost O(p^3) per series: 488 ms against 79 ms at
+    p = 20 on fsw_paper, docs/series_cost.md.)  :meth:`next` appends ``c_k`` and returns ``f_k``.
     ``f0``: the frontier values at ``x0`` when already known (from
     :attr:`AffineFunctions.residual_and_frontier`).  ``lookahead=True``: :meth:`next` returns
     ``f_{k+1}`` along the path with the provisional ``c_{k+1} = c_k`` instead of ``f_k`` (one
     more term of the same jet; the ANM's Newton homotopy, :class:`jaxanm.ANM`).
     """
 
-    def __init__(self, functions: "AffineFunctions", x0, args: tuple, pad_to: int | None = None, f0=None,
-                 lookahead: bool = False):
-        self._fn, self._x0, self._args, self._pad_to = functions, x0, args, pad_to
+    def __init__(self, functions: "AffineFunctions", x0, args: tuple, f0=None, lookahead: bool = False):
+        self._fn, self._x0, self._args = functions, x0, args
         self._lookahead = bool(lookahead)
         self._f0 = functions.frontier(x0, *args) if f0 is None else f0
-        self._k = 0
-        if pad_to is None:
-            self._terms = []
-        else:
-            self._terms = [jnp.zeros((pad_to, *jnp.shape(v)), jnp.result_type(v)) for v in self._f0]
+        self._terms = []
 
     def next(self, c) -> np.ndarray:
         """Append the path coefficient ``c_k`` and return the coefficient ``f_k`` (or, with
         ``lookahead``, ``f_{k+1}`` for ``c_{k+1} = c_k``) as a host array."""
-        self._k += 1
-        if self._pad_to is None:
-            fk, new = self._fn.truncated[self._lookahead](self._x0, c, self._f0, self._terms, *self._args)
-            self._terms.append(new)
-        else:
-            if self._k + self._lookahead > self._pad_to:
-                raise ValueError(f"AffinePath padded to {self._pad_to} terms cannot give order "
-                                 f"{self._k + self._lookahead}")
-            fk, self._terms = self._fn.padded[self._lookahead](self._x0, c, self._f0, self._terms, self._k,
-                                                               *self._args)
+        fk, new = self._fn.truncated[self._lookahead](self._x0, c, self._f0, self._terms, *self._args)
+        self._terms.append(new)
         return np.asarray(fk)
 
 
@@ -131,15 +119,6 @@ class AffineFunctions:
             fk = rest_coefficients(f0, [*terms, new] + [new] * lookahead, *args)[-1]
             return jnp.broadcast_to(fk, split.out_shape), new
 
-        def padded(lookahead, x0, c, f0, stacked, k, *args):
-            new = new_term(x0, c, args)
-            stacked = [s.at[k - 1].set(v) for s, v in zip(stacked, new)]
-            used = [s.at[k].set(v) for s, v in zip(stacked, new)] if lookahead else stacked
-            K = stacked[0].shape[0]
-            fs = rest_coefficients(f0, [[s[i] for s in used] for i in range(K)], *args)
-            fs = jnp.stack([jnp.broadcast_to(v, split.out_shape) for v in fs])
-            return fs[k - 1 + lookahead], stacked
-
         def residual_and_frontier(x, *args):
             frontier = split.linear(x, *args)
             return jnp.broadcast_to(split.rest(frontier, *args), split.out_shape), frontier
@@ -149,4 +128,3 @@ class AffineFunctions:
         self.residual_and_frontier = jax.jit(residual_and_frontier)
         # indexed by ``lookahead`` (AffinePath)
         self.truncated = {flag: jax.jit(functools.partial(truncated, flag)) for flag in (False, True)}
-        self.padded = {flag: jax.jit(functools.partial(padded, flag)) for flag in (False, True)}

@@ -34,8 +34,8 @@ def _residual_function(residual):
 def _series_function(residual):
     """Jitted ``(d_s, terms, x_old, t, dt, params) -> [R]_1..[R]_K`` along ``d_s + sum a^k terms[k-1]``.
 
-    Compiled once per number of terms K (the highest order); lower orders are obtained by
-    feeding zeros for the coefficients not known yet, so nothing recompiles per order or step.
+    Compiled once per number of terms K, the terms known at an order (as
+    :class:`~jaxanm.series.AffinePath` truncates its jets), so nothing recompiles per step.
     """
     return jax.jit(lambda d_s, terms, *args: path_coefficients(residual, d_s, terms, *args)[1])
 
@@ -66,14 +66,14 @@ class SeriesPath:
     """The residual's Taylor coefficients along the ANM path from ``d_s``, one order per
     :meth:`next` (counted in ``stats.series_orders`` and timed as ``series``).
 
-    The affine part of the residual is applied outside jet (:class:`~jaxanm.series.AffinePath`);
-    ``pad_to`` as there (None: truncated jets, one compilation per order).
+    The affine part of the residual is applied outside jet (:class:`~jaxanm.series.AffinePath`),
+    and each order's jet is truncated at the terms known.
     :meth:`start_residual` evaluates ``R(d_s)`` together with the frontier values the series
     starts from, in one call.
     """
 
-    def __init__(self, problem: "Problem", d_s, args: tuple, pad_to: int | None, lookahead: bool = False):
-        self._problem, self._d_s, self._args, self._pad_to = problem, d_s, args, pad_to
+    def __init__(self, problem: "Problem", d_s, args: tuple, lookahead: bool = False):
+        self._problem, self._d_s, self._args = problem, d_s, args
         self._lookahead = lookahead
         self._terms = []
         with problem.stats.timer("series"):
@@ -87,7 +87,7 @@ class SeriesPath:
             return P.residual(self._d_s, *self._args)
         with P.stats.timer("series"):
             r, f0 = self._fns.residual_and_frontier(self._d_s, *self._args)
-            self._path = AffinePath(self._fns, self._d_s, self._args, self._pad_to, f0=f0,
+            self._path = AffinePath(self._fns, self._d_s, self._args, f0=f0,
                                     lookahead=self._lookahead)
             r = np.asarray(r)
         P.stats.residual_evaluations += 1
@@ -100,13 +100,10 @@ class SeriesPath:
         if self._fns is None:  # jet of the whole residual
             self._terms.append(np.asarray(c))
             terms = np.stack(self._terms + self._terms[-1:] * self._lookahead)
-            k = terms.shape[0]
-            if self._pad_to is not None:
-                terms = np.concatenate([terms, np.zeros((self._pad_to - k, terms.shape[1]))])
-            return P.series(self._d_s, terms, *self._args)[k - 1]
+            return P.series(self._d_s, terms, *self._args)[-1]
         with P.stats.timer("series"):
             if self._path is None:
-                self._path = AffinePath(self._fns, self._d_s, self._args, self._pad_to,
+                self._path = AffinePath(self._fns, self._d_s, self._args,
                                         lookahead=self._lookahead)
             r = self._path.next(c)
         P.stats.series_orders += 1
@@ -272,13 +269,13 @@ class ANM:
         a_max, so quasi-steady steps refactorise to resolve increments far below the state's
         accuracy (docs/notes/anm_on_fsw_paper.md).
     adaptive : bool
-        Order-adaptive series: ``order`` is the maximum.  The coefficients are computed one
-        order at a time (the jet at order j is truncated to the j - 1 terms known, so it costs
-        O(j^2), not O(p^2)), and the series is accepted at the first order j whose validity
-        range (eq. 26 with c_j as last term) reaches a = 1 and whose end point passes the check
-        below; at order p everything is as in the fixed-order mode.  The orders used are in
-        ``stats.orders``.  ``False`` (fixed order p, as in the paper's Table 1) keeps one
-        compiled jet for all orders.
+        Order-adaptive series: ``order`` is the maximum, and the series is accepted at the
+        first order j whose validity range (eq. 26 with c_j as last term) reaches a = 1 and
+        whose end point passes the check below; at order p everything is as in the fixed-order
+        mode.  The orders used are in ``stats.orders``.  ``False``: fixed order p, as in the
+        paper's Table 1.  In both modes the coefficients are computed one order at a time, the
+        jet at order j truncated to the j - 1 terms known, so a series costs O(p^2) jet terms,
+        not O(p^3).
     homotopy : {"convex", "newton"}
         The artificial problem whose series is summed at a = 1 (both reach ``R(d) = 0`` there
         and share the validity range, the end-point check and the continuation).
@@ -386,11 +383,8 @@ class _ANMStepper:
         r_next = None  # R at the next series' start when already known (a sub-step to a checked end point)
         while True:
             # the residual coefficient that order j needs depends on c_1 .. c_{j-1} only (and, for
-            # the Newton homotopy, on the provisional c_j = c_{j-1}): the adaptive mode truncates
-            # each jet there; the fixed order compiles one jet for all orders (zeros padded)
-            newton = self.opts.homotopy == "newton"
-            path = SeriesPath(P, d_s, (x_old, t, dt, params), lookahead=newton,
-                              pad_to=None if self.opts.adaptive else p - 1 + newton)
+            # the Newton homotopy, on the provisional c_j = c_{j-1}): each jet is truncated there
+            path = SeriesPath(P, d_s, (x_old, t, dt, params), lookahead=self.opts.homotopy == "newton")
             r0 = path.start_residual() if r_next is None else r_next
             r_next = None
             r0_norm = float(np.max(np.abs(r0)))

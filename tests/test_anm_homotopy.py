@@ -30,14 +30,14 @@ def _residual(d, d_old, t, dt, params):
     return d**2 - B
 
 
-def _series(k, p, pad: bool):
+def _series(k, p):
     """ANM coefficients c_1..c_p of the Newton homotopy from d_s = S with K* = k."""
     problem = Problem(_residual, np.ones(1), jaxanm.Stats(), "dense", None)
     with jaxanm.float64():
         d_s = np.full(1, S)
         args = (d_s, np.float64(1.0), np.float64(1.0), None)
         fact = jaxanm.factorize(np.array([[k]]), problem.stats)
-        path = SeriesPath(problem, d_s, args, pad_to=p if pad else None, lookahead=True)
+        path = SeriesPath(problem, d_s, args, lookahead=True)
         coeffs = np.zeros((p, 1))
         coeffs[0] = -fact.solve(path.start_residual())
         for j in range(2, p + 1):
@@ -45,8 +45,7 @@ def _series(k, p, pad: bool):
     return coeffs[:, 0]
 
 
-@pytest.mark.parametrize("pad", [False, True])
-def test_newton_homotopy_with_fresh_kstar_is_the_taylor_series_of_the_newton_path(pad):
+def test_newton_homotopy_with_fresh_kstar_is_the_taylor_series_of_the_newton_path():
     """K* = K_T: every coefficient is the closed form's, to round-off.
 
     Each c_j is a few dozen roundings of terms no larger than |c_1| (the recursion subtracts
@@ -54,7 +53,7 @@ def test_newton_homotopy_with_fresh_kstar_is_the_taylor_series_of_the_newton_pat
     accumulation and any re-association XLA chooses.
     """
     p = 15
-    coeffs = _series(2 * S, p, pad)
+    coeffs = _series(2 * S, p)
     z = 1 - B / S**2
     exact = np.array([S * binom(0.5, j) * (-z) ** j for j in range(1, p + 1)])
     np.testing.assert_allclose(coeffs, exact, rtol=0, atol=1e-13 * abs(exact[0]))
@@ -72,7 +71,7 @@ def test_newton_homotopy_with_stale_kstar_follows_its_exact_path_within_amax():
     closed-form path, so within a_max it is within the truncation error eq. 26 promises,
     ``tol |c_1|`` at a_max (10x: the tail beyond order p, as CHECK_LIMIT allows)."""
     k, p, tol = 1.5, 12, 1e-8
-    coeffs = _series(k, p, pad=False)
+    coeffs = _series(k, p)
     amax = jaxanm.validity_range(coeffs[:, None], np.ones(1), tol)
     assert 0.2 < amax < np.inf  # (tol |c_1| / |c_12|)^(1/11) of the closed-form path: 0.83
     for a in (0.25 * min(amax, 1.0), 0.5 * min(amax, 1.0), min(amax, 1.0)):
@@ -88,14 +87,14 @@ def test_newton_homotopy_gains_an_order_of_the_increment_per_order():
     |c_7 / c_1| = |binom(1/2, 7) / binom(1/2, 1)| z^6 = 1.32e-4; the convex series from K* = 2 s
     obeys c_j = -(1/2) sum_{i+k=j-1} c_i c_k (c_1 = -0.2, c_3 = -0.02, c_5 = -0.004,
     c_7 = -0.001), so |c_7 / c_1| = 5e-3, 38 times the Newton path's."""
-    newton = _series(2 * S, 7, pad=False)
+    newton = _series(2 * S, 7)
     assert abs(newton[6] / newton[0]) < 1e-3
     problem = Problem(_residual, np.ones(1), jaxanm.Stats(), "dense", None)
     with jaxanm.float64():
         d_s = np.full(1, S)
         args = (d_s, np.float64(1.0), np.float64(1.0), None)
         fact = jaxanm.factorize(np.array([[2 * S]]), problem.stats)
-        path = SeriesPath(problem, d_s, args, pad_to=None)
+        path = SeriesPath(problem, d_s, args)
         convex = np.zeros(7)
         convex[0] = -fact.solve(path.start_residual())[0]
         for j in range(2, 8):
