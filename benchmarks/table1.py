@@ -37,7 +37,7 @@ PAPER = {"orders": "5 or 7, 10, 15, 20 (first column unlabelled)",
 
 def measure(scene_name: str, order: int, t_end: float, criterion: str | None) -> dict:
     """One ANM run of ``scene_name`` at truncation order ``order`` over [0, t_end]."""
-    overrides = {"time.t_end": t_end, "solver.kind": "anm", "solver.order": order}
+    overrides = {"time.t_end": t_end, "solver.kind": "anm", "solver.order": order, "solver.adaptive": False}
     if criterion:
         overrides["solver.criterion"] = criterion
     scene = load_scene(scene_name).with_overrides(overrides)

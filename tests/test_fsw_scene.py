@@ -39,7 +39,7 @@ def test_shipped_scenes_load_and_paper_values():
     assert (th.h, th.Ta, th.T0) == (1000, 300, 300)
     assert (s.time.dt, s.time.t_end) == (1e-4, 0.7)
     assert {0.001, 0.01, 0.05, 0.08, 0.3, 0.5, 0.7} <= set(s.time.save_times)
-    assert (s.solver.kind, s.solver.order, s.solver.tol) == ("anm", 7, 1e-6)
+    assert (s.solver.kind, s.solver.order, s.solver.tol, s.solver.adaptive) == ("anm", 7, 1e-6, True)
     assert [p.name for p in s.probes] == ["1", "2", "3"]
     assert [x.name for x in s.sections] == ["A-A", "B-B"]
     assert set(s.effects) == set(EFFECTS) - {"tracers"}
