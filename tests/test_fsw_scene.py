@@ -78,6 +78,15 @@ def test_solver_switches_reach_the_anm_options():
     assert s.with_overrides({"solver.pade": False}).solver.make().pade is False
 
 
+def test_max_rate_reaches_modified_newton():
+    """``solver.max_rate`` (a sweep tunes modified Newton by it) reaches ``jaxanm.ModifiedNewton``."""
+    s = load_scene("fsw_small").with_overrides({"solver.kind": "modified_newton", "solver.max_rate": "0.3"})
+    assert s.solver.make() == jaxanm.ModifiedNewton(tol=s.solver.tol, max_rate=0.3)
+    assert load_scene("fsw_small").solver.max_rate == jaxanm.ModifiedNewton().max_rate
+    with pytest.raises(SceneError, match=r"solver.max_rate.*\(0, 1\)"):
+        s.with_overrides({"solver.max_rate": "1.5"})
+
+
 @pytest.mark.parametrize("overrides, field, allowed", [
     ({"material.n": "-0.5"}, "material.n", "> 0"),
     ({"material.K": "abc"}, "material.K", "real number"),

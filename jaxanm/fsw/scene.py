@@ -355,7 +355,9 @@ class SolverSpec(_Section):
     ``criterion`` (``increment``: the paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`),
     ``max_substeps``, ``adaptive`` (order-adaptive series, ``order`` the maximum), ``homotopy``
     (``convex``: the paper's eq. 22, or ``newton``: see :class:`jaxanm.ANM`) and ``pade`` (accept
-    series through their Padé approximant, :class:`jaxanm.ANM`; needs ``order >= 3``)."""
+    series through their Padé approximant, :class:`jaxanm.ANM`; needs ``order >= 3``); modified
+    Newton's ``max_rate`` (the contraction above which it rebuilds its Jacobian,
+    :class:`jaxanm.ModifiedNewton`)."""
 
     _name = "solver"
     kind: str = "anm"
@@ -366,6 +368,7 @@ class SolverSpec(_Section):
     adaptive: bool = False
     homotopy: str = "convex"
     pade: bool = False
+    max_rate: float = 0.5
 
     def _validate(self):
         _check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
@@ -381,6 +384,8 @@ class SolverSpec(_Section):
         _check("solver.pade", self.pade, not (self.pade and self.kind == "anm" and self.order < 3),
                f"needs solver.order >= 3, got {self.order} (the Padé range compares the approximants of orders "
                "p and p - 1; for p = 2 the lower one is the start point)")
+        _check("solver.max_rate", self.max_rate, 0 < self.max_rate < 1,
+               "must be in (0, 1): modified Newton rebuilds its Jacobian when |dx_k| / |dx_k-1| exceeds it")
 
     def make(self):
         """The :mod:`jaxanm` solver options object (``jaxanm.ANM``, ``Newton`` or ``ModifiedNewton``)."""
@@ -392,7 +397,7 @@ class SolverSpec(_Section):
                               pade=self.pade)
         if self.kind == "newton":
             return jaxanm.Newton(tol=self.tol)
-        return jaxanm.ModifiedNewton(tol=self.tol)
+        return jaxanm.ModifiedNewton(tol=self.tol, max_rate=self.max_rate)
 
 
 @dataclasses.dataclass(frozen=True)
