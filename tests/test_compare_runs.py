@@ -1,4 +1,5 @@
-"""benchmarks/compare_runs.py on hand-made run directories: known perturbations are reported exactly."""
+"""jaxanm.fsw.compare and benchmarks/compare_runs.py on hand-made run directories: known perturbations
+are reported exactly."""
 
 import json
 import sys
@@ -9,6 +10,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import compare_runs  # noqa: E402
+
+from jaxanm.fsw.compare import cost_row, differences, load_run  # noqa: E402
 
 T0, OMEGA, R1 = 300.0, 10.0, 1e-3
 
@@ -37,18 +40,18 @@ def write_run(path: Path, *, T_shift=0.0, v_shift=0.0, kind="anm", factorization
 
 
 def test_identical_runs_differ_by_nothing(tmp_path):
-    a = compare_runs.load_run(write_run(tmp_path / "a"))
-    b = compare_runs.load_run(write_run(tmp_path / "b"))
-    d = compare_runs.differences(b, a)
+    a = load_run(write_run(tmp_path / "a"))
+    b = load_run(write_run(tmp_path / "b"))
+    d = differences(b, a)
     assert d["max_rel_dV"] == d["max_rel_dT"] == d["max_dpoints_m"] == 0.0
     assert d["probe_max_dT_K"] == d["probe_max_dV_over_omegaR1"] == 0.0
 
 
 def test_known_perturbations_are_reported_relative_to_their_yardsticks(tmp_path):
-    ref = compare_runs.load_run(write_run(tmp_path / "ref"))
-    run = compare_runs.load_run(write_run(tmp_path / "run", T_shift=0.04, v_shift=2e-6, kind="newton",
+    ref = load_run(write_run(tmp_path / "ref"))
+    run = load_run(write_run(tmp_path / "run", T_shift=0.04, v_shift=2e-6, kind="newton",
                                           factorizations=60, wall=30.0))
-    d = compare_runs.differences(run, ref)
+    d = differences(run, ref)
     # each saved time is measured against its own max |T - T0| (point 2: 40 t K) and max V
     # (point 4: 4e-3 t m/s), so the earliest time, with the smallest yardstick, gives the maximum
     assert d["max_rel_dT"] == pytest.approx(0.04 / (40.0 * 0.1), rel=1e-9)
@@ -56,19 +59,19 @@ def test_known_perturbations_are_reported_relative_to_their_yardsticks(tmp_path)
     assert d["max_rel_dV"] == pytest.approx(expected_dV, rel=1e-9)
     assert d["probe_max_dT_K"] == pytest.approx(0.04, rel=1e-9)
     assert d["probe_max_dV_over_omegaR1"] == pytest.approx(2e-6 / (OMEGA * R1), rel=1e-12)
-    costs = [compare_runs.cost_row(r) for r in (ref, run)]
+    costs = [cost_row(r) for r in (ref, run)]
     table = compare_runs.markdown(costs, [d])
     assert "| 60 |" in table and "| 3.00 |" in table  # factorisations and the wall ratio to the first run
 
 
 def test_runs_saved_at_different_times_are_refused(tmp_path):
-    ref = compare_runs.load_run(write_run(tmp_path / "ref"))
-    run = compare_runs.load_run(write_run(tmp_path / "run"))
+    ref = load_run(write_run(tmp_path / "ref"))
+    run = load_run(write_run(tmp_path / "run"))
     run["fields"]["t"] = run["fields"]["t"] * 2
     with pytest.raises(ValueError, match="different times"):
-        compare_runs.differences(run, ref)
+        differences(run, ref)
 
 
 def test_a_directory_without_run_outputs_is_named(tmp_path):
     with pytest.raises(FileNotFoundError, match="not the output directory.*summary.json"):
-        compare_runs.load_run(tmp_path)
+        load_run(tmp_path)
