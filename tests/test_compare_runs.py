@@ -64,6 +64,22 @@ def test_known_perturbations_are_reported_relative_to_their_yardsticks(tmp_path)
     assert "| 60 |" in table and "| 3.00 |" in table  # factorisations and the wall ratio to the first run
 
 
+@pytest.mark.filterwarnings("error")  # no 0/0 warning: an absent field is NaN by definition
+def test_a_field_the_reference_lacks_is_nan_not_a_warning(tmp_path):
+    """Pure conduction (no velocity) and a first saved time with T = T0 at every point."""
+    ref = load_run(write_run(tmp_path / "ref"))
+    run = load_run(write_run(tmp_path / "run", T_shift=0.04))
+    for r in (ref, run):
+        r["fields"]["u"][:] = r["fields"]["v"][:] = 0.0
+    ref["fields"]["T"][1] = T0  # the reference's yardstick at t = 0.1 is 0: only t = 0.2 counts
+    d = differences(run, ref)
+    assert np.isnan(d["max_rel_dV"]) and np.isnan(d["per_saved_time"]["rel_dV"]).all()
+    assert d["max_rel_dT"] == pytest.approx(0.04 / (40.0 * 0.2), rel=1e-9)
+    assert np.isnan(d["per_saved_time"]["rel_dT"][0])
+    run["fields"]["T"][2, 0] = np.nan  # a non-finite field of the run itself is not hidden
+    assert np.isnan(differences(run, ref)["max_rel_dT"])
+
+
 def test_runs_saved_at_different_times_are_refused(tmp_path):
     ref = load_run(write_run(tmp_path / "ref"))
     run = load_run(write_run(tmp_path / "run"))

@@ -50,7 +50,12 @@ def cost_row(run: dict) -> dict:
 
 
 def differences(run: dict, ref: dict) -> dict:
-    """How far ``run`` is from ``ref`` on the fields and probe histories both saved."""
+    """How far ``run`` is from ``ref`` on the fields and probe histories both saved.
+
+    A relative field difference is NaN at a saved time where the reference's yardstick is 0
+    (no velocity in a pure-conduction scene, T = T0 in an isothermal one), and its maximum over
+    the saved times is NaN only when the field is absent at all of them.
+    """
     f, g = run["fields"], ref["fields"]
     if f["t"].shape != g["t"].shape or not np.allclose(f["t"], g["t"]):
         raise ValueError(f"{run['dir']} and {ref['dir']} saved fields at different times; "
@@ -59,8 +64,8 @@ def differences(run: dict, ref: dict) -> dict:
     T0, speed = scene["thermal"]["T0"], scene["tool"]["omega"] * scene["geometry"]["R1"]
     later = f["t"] > 0  # at t = 0 both hold the initial state (T - T0 = 0)
     V, V_ref = np.hypot(f["u"], f["v"]), np.hypot(g["u"], g["v"])
-    dV = np.max(np.abs(V - V_ref)[later], axis=1) / np.max(V_ref[later], axis=1)
-    dT = np.max(np.abs(f["T"] - g["T"])[later], axis=1) / np.max(np.abs(g["T"] - T0)[later], axis=1)
+    dV, max_dV = _relative(np.max(np.abs(V - V_ref)[later], axis=1), np.max(V_ref[later], axis=1))
+    dT, max_dT = _relative(np.max(np.abs(f["T"] - g["T"])[later], axis=1), np.max(np.abs(g["T"] - T0)[later], axis=1))
     dx = np.max(np.abs(f["points"] - g["points"]), axis=(1, 2))
     p, q = run["probes"], ref["probes"]
     if len(p) != len(q):
@@ -70,7 +75,19 @@ def differences(run: dict, ref: dict) -> dict:
     vel = [(c[:-2] + "_u", c[:-2] + "_v") for c in T_cols]
     probe_dT = max(float(np.max(np.abs(p[c] - q[c]))) for c in T_cols)
     probe_dV = max(float(np.max(np.hypot(p[u] - q[u], p[v] - q[v]))) for u, v in vel) / speed
-    return {"dir": run["dir"], "max_rel_dV": float(dV.max()), "max_rel_dT": float(dT.max()),
+    return {"dir": run["dir"], "max_rel_dV": max_dV, "max_rel_dT": max_dT,
             "max_dpoints_m": float(dx.max()), "per_saved_time": {"t": f["t"][later].tolist(),
                                                                   "rel_dV": dV.tolist(), "rel_dT": dT.tolist()},
             "probe_max_dT_K": probe_dT, "probe_max_dV_over_omegaR1": probe_dV}
+
+
+def _relative(difference: np.ndarray, yardstick: np.ndarray) -> tuple[np.ndarray, float]:
+    """``difference / yardstick`` per saved time (NaN where the yardstick is 0: the field is absent)
+    and its largest value over the times where the field is present (NaN if it is absent at all).
+
+    A NaN of the run itself (a non-finite field) where the field is present is kept.
+    """
+    present = yardstick > 0
+    per_time = np.full(difference.shape, np.nan)
+    np.divide(difference, yardstick, out=per_time, where=present)
+    return per_time, float(np.max(per_time[present])) if present.any() else float("nan")
