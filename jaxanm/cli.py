@@ -247,6 +247,15 @@ def _write_outputs(result, out_dir, solver_settings):
     return write_outputs(result, out_dir, solver_settings)
 
 
+def write_results(result, out_dir, scene) -> list[Path]:
+    """Write every file of ``jaxanm run --out out_dir`` for ``result``, a run of ``scene``; return the paths.
+
+    ``summary.json`` records the solver as the scene's ``solver.kind`` with the options the
+    run used (``result.solver``).  Shared by ``jaxanm run`` and the tasks of ``jaxanm sweep``.
+    """
+    return _write_outputs(result, out_dir, {"kind": scene.solver.kind, "options": result.solver})
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     """``jaxanm run``: load, override (or resume), simulate with a progress bar, write the results."""
     if args.resume is not None:
@@ -281,7 +290,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close()
     try:
-        paths = _write_outputs(result, out_dir, {"kind": scene.solver.kind, "options": result.solver})
+        paths = write_results(result, out_dir, scene)
     except OSError as exc:
         return _error(f"cannot write results to {out_dir}: {exc}", 1)
     stats = result.stats
@@ -305,7 +314,7 @@ def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> st
         try:
             from jaxanm.fsw.output import end_time
 
-            paths = _write_outputs(partial, out_dir, {"kind": scene.solver.kind, "options": partial.solver})
+            paths = write_results(partial, out_dir, scene)
             parts.append(f"results up to t = {end_time(partial):.6g} s ({len(paths)} files) written to {out_dir}")
         except OSError as err:
             parts.append(f"cannot write the results so far to {out_dir}: {err}")
