@@ -25,9 +25,10 @@ jittered clouds with rcond down to 1e-6).  The kernel is jitted ``jax.numpy`` (i
 not differentiated with respect to the points: nothing in jaxanm does).
 
 Neighbours come from ``scipy.spatial.cKDTree``, or for a moving cloud from the candidate
-lists of a :class:`NeighbourList` (remade only when some point has moved far).  The compiled kernel runs on chunks of
-``CHUNK`` evaluation points and depends only on the stencil width m (and q): rebuilding
-stencils for a moved cloud with the same ``m_max`` -- or for any N -- does not recompile.
+lists of a :class:`NeighbourList` (remade only when some point has moved far).  The compiled
+kernel runs on all evaluation points at once (in calls of up to ``CALL_MAX``, padded to a
+multiple of ``CHUNK``) and depends only on that padded size and the stencil width m (and q):
+rebuilding stencils for a moved cloud with the same ``m_max`` does not recompile.
 
 Accuracy (quadratic basis, tests/test_mls.py): quadratic fields are reproduced to round-off;
 for smooth fields the errors decrease as dr^3 (value), dr^2 (first derivatives) and dr
@@ -69,12 +70,18 @@ M_MAX_MULTIPLE = 8
 """The default stencil width is the largest neighbour count rounded up to a multiple of this."""
 
 CHUNK = 128
-"""Evaluation points per call of the compiled kernel (the last call is padded).
+"""Granularity of the compiled kernel's calls: each takes a multiple of this many evaluation
+points (the last call of a build is padded up to one), so that few shapes compile."""
 
-128 kept the forward-mode kernel's working set in the L2 cache (on fsw_paper, 881 points,
-m = 32: 9 ms with 128 per call against 15 ms with 512 and 18 ms with 1024, one core, issue 14).
-For the closed-form kernel the size hardly matters (fsw_paper, interleaved medians at load 3.3:
-11.0, 9.8 and 10.0 ms with 128, 512 and 1024 per call); 128 pads small N the least."""
+CALL_MAX = 1024
+"""Most evaluation points per call of the compiled kernel (larger builds make several calls).
+
+One call over all of fsw_paper's 881 points (padded to 896) instead of 7 calls of 128: the
+kernel's ~200 XLA fusions run once instead of 7 times, each over longer arrays (measured
+interleaved, 2-core AMD EPYC at load 6: 2.3 ms against 3.3 ms, the value-only kernel 1.1
+against 1.5 ms; 256 and 512 per call in between; issue 14).  The compiled shapes are the
+multiples of :data:`CHUNK` up to this: at most 8 per (m, q) and kernel, each compiled once
+(2-3 s for the derivative kernel)."""
 
 RCOND_MIN = 1e-10
 """Smallest accepted reciprocal condition number of the equilibrated moment matrix.
@@ -173,8 +180,9 @@ _BASIS_DERIVATIVES = (1.0, 1.0, 1.0, 2.0, 1.0, 2.0)
 def _shape_functions(x, y, mask, c, q, derivatives=True):
     """MLS shape functions at ``xi = 0`` and, with ``derivatives``, their first ``(x, y)`` and
     second ``(xx, xy, yy)`` derivatives with respect to xi, for n stencils at once: node local
-    coordinates ``x, y`` and ``mask`` (n, m).  Returns those (n, m) arrays followed by the
-    equilibrated moment matrices (n, 6, 6).
+    coordinates ``x, y`` and ``mask`` (n, m).  Returns those (n, m) arrays followed by a lower
+    bound (n,) of the reciprocal condition numbers of the equilibrated moment matrices, from
+    their Cholesky factors (for :func:`_condition_screen`).
 
     With ``A = P^T W P``, ``gamma = A^{-1} p(xi)`` and ``phi = W P gamma``, differentiating
     ``A gamma = p`` gives ``A gamma_,i = p_,i - A_,i gamma`` and
@@ -215,82 +223,95 @@ def _shape_functions(x, y, mask, c, q, derivatives=True):
     A0 = _gram([v * p for p in P])  # P^T W P
     s = [1.0 / jnp.sqrt(A0[i][i]) for i in range(N_BASIS)]
     G1 = [[A0[i][j] * s[i] * s[j] if j >= i else None for j in range(N_BASIS)] for i in range(N_BASIS)]
-    moments = jnp.stack([jnp.stack([G1[min(i, j)][max(i, j)] for j in range(N_BASIS)], axis=-1)
-                         for i in range(N_BASIS)], axis=-2)
     R1inv = _cholesky_inverse(G1)
+    # rcond(G1) >= det / trace^6 (see _condition_screen), det G1 = prod R1_jj^2
+    det = 1.0 / functools.reduce(jnp.multiply, [R1inv[j][j] for j in range(N_BASIS)]) ** 2
+    bound = det / sum(G1[j][j] for j in range(N_BASIS)) ** N_BASIS
     Q1 = jax.lax.optimization_barrier(_times_upper([v * p * si[:, None] for p, si in zip(P, s)], R1inv))
     R2inv = _cholesky_inverse(_gram(Q1))
-    Q = jax.lax.optimization_barrier(_times_upper(Q1, R2inv))
     # R^{-1} = R1^{-1} R2^{-1} (upper triangular); column j of R^{-T} is row j of R^{-1}
     Rinv = [[sum(R1inv[i][k] * R2inv[k][j] for k in range(i, j + 1)) if j >= i else None
              for j in range(N_BASIS)] for i in range(N_BASIS)]
 
     def Qz(j, f=None):
-        """``Q (z_j + Q^T f)`` (n, m) for ``z_j = R^{-T} S p_,j`` and ``f`` (n, m)."""
+        """``Q (z_j + Q^T f)`` (n, m) for ``z_j = R^{-T} S p_,j`` and ``f`` (n, m).
+
+        ``Q = Q1 R2^{-1}`` is applied, not formed: ``Q^T f = R2^{-T} (Q1^T f)`` and
+        ``Q z = Q1 (R2^{-1} z)``, 6 x 6 triangular products on (n,) arrays in place of 21
+        products of (n, m) arrays.  (``R2`` is within a few eps of orthogonal-factor
+        conditioning 1, so this changes the results by round-off only.)
+        """
         z = {k: Rinv[j][k] * (s[j] * _BASIS_DERIVATIVES[j]) for k in range(j, N_BASIS)}
         if f is not None:
-            z = {k: z.get(k, 0.0) + jnp.sum(Q[k] * f, axis=1) for k in range(N_BASIS)}
-        return sum(Q[k] * zk[:, None] for k, zk in z.items())
+            d = [jnp.sum(Q1[i] * f, axis=1) for i in range(N_BASIS)]
+            z = {k: z.get(k, 0.0) + sum(R2inv[i][k] * d[i] for i in range(k + 1)) for k in range(N_BASIS)}
+        y = [sum(R2inv[i][k] * z[k] for k in range(i, N_BASIS) if k in z) for i in range(N_BASIS)]
+        return sum(Q1[i] * y[i][:, None] for i in range(N_BASIS))
 
     u = jax.lax.optimization_barrier(Qz(0))
     if not derivatives:
-        return v * u, moments
+        return v * u, bound
     ux, uy = jax.lax.optimization_barrier((Qz(1, gx * u), Qz(2, gy * u)))
     cxx, cxy, cyy = gx * gx - gxx, gx * gy - gxy, gy * gy - gyy
     uxx = Qz(3, 2.0 * gx * ux - cxx * u)
     uxy = Qz(4, gx * uy + gy * ux - cxy * u)
     uyy = Qz(5, 2.0 * gy * uy - cyy * u)
     return (v * u, v * (ux - gx * u), v * (uy - gy * u), v * (uxx - 2.0 * gx * ux + cxx * u),
-            v * (uxy - gx * uy - gy * ux + cxy * u), v * (uyy - 2.0 * gy * uy + cyy * u), moments)
+            v * (uxy - gx * uy - gy * ux + cxy * u), v * (uyy - 2.0 * gy * uy + cyy * u), bound)
 
 
 @functools.partial(jax.jit, static_argnames=("q",))
-def _kernel(local, mask, h, c, q):
+def _kernel(x, y, mask, h, c, q):
     """Shape functions and derivatives for n stencils: ``(phi, dx, dy, dxx, dxy, dyy)`` (n, m),
-    the equilibrated moment matrices (n, 6, 6) and a finite flag (n,).
+    lower bounds of the moment matrices' rcond (n,) and a finite flag (n,).
 
-    ``local`` (n, m, 2): node coordinates relative to each evaluation point, divided by its
-    ``h`` (n,); ``mask`` (n, m): real (not padding) entries within the support (r <= 1).
-    Called by :func:`_run_kernel` with n = ``CHUNK``.
+    ``x, y`` (n, m): node coordinates relative to each evaluation point, divided by its ``h``
+    (n,); ``mask`` (n, m): real (not padding) entries within the support (r <= 1).  Called by
+    :func:`_run_kernel` with n a multiple of :data:`CHUNK`.
     """
-    phi, px, py, pxx, pxy, pyy, moments = _shape_functions(local[..., 0], local[..., 1], mask, c, q)
+    phi, px, py, pxx, pxy, pyy, bound = _shape_functions(x, y, mask, c, q)
     h1 = h[:, None]
     h2 = h1 * h1
-    out = (phi, px / h1, py / h1, pxx / h2, pxy / h2, pyy / h2)
+    # the barrier: the finite test reads the outputs instead of fusing (recomputing) them
+    out = jax.lax.optimization_barrier((phi, px / h1, py / h1, pxx / h2, pxy / h2, pyy / h2))
     finite = functools.reduce(jnp.logical_and, [jnp.isfinite(a).all(1) for a in out])
-    return (*out, moments, finite)
+    return (*out, bound, finite)
 
 
 @functools.partial(jax.jit, static_argnames=("q",))
-def _value_kernel(local, mask, h, c, q):
-    """Value-only counterpart of :func:`_kernel`: ``(phi, moments, finite)`` for n stencils
-    (phi by the same operations, without the derivatives)."""
-    phi, moments = _shape_functions(local[..., 0], local[..., 1], mask, c, q, derivatives=False)
-    return phi, moments, jnp.isfinite(phi).all(1)
+def _value_kernel(x, y, mask, h, c, q):
+    """Value-only counterpart of :func:`_kernel`: ``(phi, bound, finite)`` for n stencils (phi
+    by the same operations, without the derivatives)."""
+    phi, bound = _shape_functions(x, y, mask, c, q, derivatives=False)
+    phi = jax.lax.optimization_barrier(phi)
+    return phi, bound, jnp.isfinite(phi).all(1)
 
 
-def _run_kernel(local, mask, h, c, q, derivatives=True):
-    """Run :func:`_kernel` on fixed-size chunks of evaluation points; numpy results.
+def _run_kernel(x, y, mask, h, c, q, derivatives=True):
+    """Run :func:`_kernel` on all evaluation points, in calls of at most :data:`CALL_MAX`;
+    numpy results ``(phi, dx, dy, dxx, dxy, dyy, bound, finite)``.
 
-    Chunks keep the working set in cache and make the compiled shape independent of N: one
-    compilation per (m, q).  The last chunk is padded with copies of the first stencil.  The
-    numpy chunks go to the jitted kernel as they are (no separate ``jnp.asarray`` dispatches),
-    and every chunk is dispatched before any result is read, so the host never waits between
-    chunks.  Without ``derivatives``, :func:`_value_kernel` runs instead and the five
-    derivative arrays are None.
+    The points are padded (with copies of the first stencil) to a multiple of :data:`CHUNK`,
+    so that the compiled shapes do not depend on N itself.  The numpy inputs go to the jitted
+    kernel as they are (no separate ``jnp.asarray`` dispatches), and every call is dispatched
+    before any result is read.  Without ``derivatives``, :func:`_value_kernel` runs instead
+    and the five derivative arrays are None.
     """
-    n = local.shape[0]
+    n = x.shape[0]
     n_pad = -(-n // CHUNK) * CHUNK
 
     def padded(a):
-        return np.concatenate([a, np.repeat(a[:1], n_pad - n, axis=0)])
+        return np.concatenate([a, np.repeat(a[:1], n_pad - n, axis=0)]) if n_pad > n else a
 
-    local, mask, h = padded(local), padded(mask), padded(h)
+    x, y, mask, h = padded(x), padded(y), padded(mask), padded(h)
     kernel = _kernel if derivatives else _value_kernel
-    chunks = [kernel(local[i:i + CHUNK], mask[i:i + CHUNK], h[i:i + CHUNK], c, q)
-              for i in range(0, n_pad, CHUNK)]
-    out = [np.concatenate([np.asarray(res[k]) for res in chunks])[:n] for k in range(len(chunks[0]))]
-    return out if derivatives else [out[0], None, None, None, None, None, out[1], out[2]]
+    calls = [kernel(x[i:i + CALL_MAX], y[i:i + CALL_MAX], mask[i:i + CALL_MAX], h[i:i + CALL_MAX], c, q)
+             for i in range(0, n_pad, CALL_MAX)]
+    if len(calls) == 1:
+        out = [np.asarray(a)[:n] for a in calls[0]]
+    else:
+        out = [np.concatenate([np.asarray(res[k]) for res in calls])[:n] for k in range(len(calls[0]))]
+    return out if derivatives else [out[0], None, None, None, None, None, *out[1:]]
 
 
 def _as_cloud(name, points):
@@ -336,6 +357,18 @@ def _check_weight(c, q):
         )
 
 
+def _equilibrated_moments(x, y, mask, c, q):
+    """The equilibrated moment matrices ``S P^T W P S`` (n, 6, 6) of n stencils (scaled local
+    coordinates ``x, y`` and support ``mask`` (n, m), as for the kernel), in numpy: for the
+    few stencils whose condition :func:`_condition_screen` computes exactly."""
+    w = np.where(mask, np.exp(-(((x * x + y * y) / c**2) ** q)), 0.0)
+    P = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
+    A = np.einsum("nmi,nm,nmj->nij", P, w, P)
+    with np.errstate(divide="ignore", invalid="ignore"):  # an empty support: non-finite, refused
+        s = 1.0 / np.sqrt(np.einsum("nii->ni", A))
+    return A * s[:, :, None] * s[:, None, :]
+
+
 def _reciprocal_condition(moments):
     """Reciprocal 2-norm condition numbers of symmetric matrices (n, k, k); NaN if non-finite."""
     rcond = np.full(moments.shape[0], np.nan)
@@ -345,24 +378,22 @@ def _reciprocal_condition(moments):
     return rcond
 
 
-def _condition_screen(moments):
+def _condition_screen(bound, x, y, mask, c, q):
     """Reciprocal condition numbers where they matter: exact below a cheap lower bound only.
 
     For a symmetric positive definite k x k matrix, ``lambda_max <= trace`` and the other
     eigenvalues are at most ``lambda_max``, so ``lambda_min >= det / lambda_max^(k-1)`` and
-    ``rcond >= det / trace^k``.  Rows whose bound already clears :data:`RCOND_MIN` (a batched
-    LU determinant, 6x cheaper than the eigenvalues) get the bound; the others, and any
-    non-finite row, get :func:`_reciprocal_condition`.  Which rows pass the check is unchanged.
+    ``rcond >= det / trace^k``.  The kernel returns that ``bound`` (its Cholesky factors give
+    the determinant to a few eps); rows where it already clears :data:`RCOND_MIN` keep it, the
+    others (and non-finite ones) get :func:`_reciprocal_condition` of their moment matrices
+    (:func:`_equilibrated_moments` of the kernel's inputs ``x, y, mask, c, q``).  Which rows
+    pass the check is unchanged.
     """
-    k = moments.shape[-1]
-    bound = np.full(moments.shape[0], -np.inf)
-    ok = np.isfinite(moments).all(axis=(1, 2))
-    trace = np.trace(moments[ok], axis1=1, axis2=2)
-    bound[ok] = np.linalg.det(moments[ok]) / trace ** k
+    bound = np.array(bound)
     # 1e3 x RCOND_MIN: a margin far above the determinant's round-off
     low = np.flatnonzero(~(bound >= 1e3 * RCOND_MIN))
     if low.size:
-        bound[low] = _reciprocal_condition(moments[low])
+        bound[low] = _reciprocal_condition(_equilibrated_moments(x[low], y[low], mask[low], c, q))
     return bound
 
 
@@ -506,13 +537,15 @@ def _stencils(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None
                 f"({dup.size} points have a duplicate); remove duplicate points."
             )
 
-    local = (nodes[index] - centers[:, None, :]) / h[:, None, None]
+    # scaled local coordinates, one axis at a time (a 1-D take is faster than rows of 2)
+    x = (nodes[:, 0][index] - centers[:, :1]) / h[:, None]
+    y = (nodes[:, 1][index] - centers[:, 1:]) / h[:, None]
     # The support r <= 1 in the scaled coordinates is decided here, in numpy (two roundings,
     # no fused multiply-add): inside the jitted kernel XLA may contract x*x + y*y into an FMA,
     # and for nodes at h to round-off (the polar cloud's rings) the two roundings disagree.
-    inside = mask & (local[..., 0] * local[..., 0] + local[..., 1] * local[..., 1] <= 1.0)
-    phi, dx, dy, dxx, dxy, dyy, moments, finite = _run_kernel(local, inside, h, float(c), int(q), derivatives)
-    rcond = _condition_screen(moments)
+    inside = mask & (x * x + y * y <= 1.0)
+    phi, dx, dy, dxx, dxy, dyy, bound, finite = _run_kernel(x, y, inside, h, float(c), int(q), derivatives)
+    rcond = _condition_screen(bound, x, y, inside, float(c), int(q))
     bad = np.flatnonzero(~(finite & (rcond >= RCOND_MIN)))
     if bad.size:
         i = bad[0]

@@ -123,18 +123,27 @@ def test_values_on_the_host_match_the_mls_gathers():
 
 
 def test_condition_screen_is_a_lower_bound_exact_where_it_decides():
+    """The kernel's bound det / trace^6 (from its Cholesky factors) never exceeds the exact
+    rcond (eigenvalues of the numpy moment matrices), by more than the round-off of the two
+    (a relative 1e-12: far above eps times cond(G1) <= 1e10, far below any decision margin),
+    and the screen gives the exact value wherever the bound does not clear RCOND_MIN by 1e3."""
     rng = np.random.default_rng(6)
-    B = rng.standard_normal((50, 6, 8))
-    A = B @ B.transpose(0, 2, 1)
-    A[:5, :, 0] *= 1e-7  # nearly singular: below the screen, computed exactly
-    A[:5, 0, :] *= 1e-7
-    s = 1 / np.sqrt(np.einsum("nii->ni", A))
-    A = A * s[:, :, None] * s[:, None, :]
-    exact = mls._reciprocal_condition(A)
-    screen = mls._condition_screen(A)
-    assert np.all(screen <= exact * (1 + 1e-12))
-    low = exact < 1e3 * mls.RCOND_MIN
+    x, y = rng.uniform(-0.7, 0.7, (2, 50, 16))
+    x[:5] = rng.uniform(-0.7, 0.7, (5, 16))
+    y[:5] = 0.3 * x[:5] + 3e-3 * rng.uniform(-1, 1, (5, 16))  # nearly collinear: rcond ~ 1e-9
+    mask = np.ones(x.shape, dtype=bool)
+    mask[:, 12:] = False  # padding
+    with jaxanm.float64():  # as mls's entry points run it
+        out = mls._run_kernel(x, y, mask, np.ones(50), 0.3, 1)
+    bound, finite = out[6], out[7]
+    exact = mls._reciprocal_condition(mls._equilibrated_moments(x, y, mask, 0.3, 1))
+    assert finite.all()
+    assert np.all(bound <= exact * (1 + 1e-12))
+    screen = mls._condition_screen(bound, x, y, mask, 0.3, 1)
+    low = ~(bound >= 1e3 * mls.RCOND_MIN)
+    assert low[:5].all() and (~low).sum() > 25  # both ways exercised
     np.testing.assert_array_equal(screen[low], exact[low])
+    np.testing.assert_array_equal(screen[~low], bound[~low])
     assert np.array_equal(screen >= mls.RCOND_MIN, exact >= mls.RCOND_MIN)
 
 
