@@ -95,6 +95,15 @@ def test_refit_iterations_give_the_direct_fit_and_pickle_exactly():
         # 1e-15 + 2 * 3.6 eps = 2.6e-15, bounded with room for the estimate (measured 1.7e-15)
         assert np.all(np.abs(X - D).max(axis=1) <= 1e-14 * np.abs(D).max(axis=1))
     assert all(it > 0 for it in refit.iterations[1:])
+    # From a guess: the state fitted on the previous stencils, as a Lagrangian run passes the
+    # state it solved.  The same fixed point, to the iterations' tolerance (1e-15 of max |x|)
+    # plus the direct solve's own error (cond(Phi) eps, cond ~ 3): within 1e-14.
+    st_next = build_stencils(_sheared_cloud(cloud, g.dr, seed=5, amount=0.04, angle=8e-3), cloud.n_tool, g, m_max=m)
+    direct = model.fit_state(values, st_next)
+    x = model.fit_state(values, st_next, refit, guess=model.fit_state(values, st))
+    X, D = x.reshape(len(model.fields), -1), direct.reshape(len(model.fields), -1)
+    assert np.all(np.abs(X - D).max(axis=1) <= 1e-14 * np.abs(D).max(axis=1))
+    assert refit.iterations[-1] > 0
     copy = pickle.loads(pickle.dumps(refit))
     st = build_stencils(_sheared_cloud(cloud, g.dr, seed=9, amount=0.04), cloud.n_tool, g, m_max=m)
     np.testing.assert_array_equal(model.fit_state(values, st, copy), model.fit_state(values, st, refit))

@@ -310,7 +310,8 @@ class Model:
                 "T": np.full(len(kind), sc.thermal.T0)}
         return np.stack([cols[f] for f in self.fields], axis=1)
 
-    def fit_state(self, values: np.ndarray, stencils: mls.Stencils, refit: "Refit | None" = None) -> np.ndarray:
+    def fit_state(self, values: np.ndarray, stencils: mls.Stencils, refit: "Refit | None" = None,
+                  guess: np.ndarray | None = None) -> np.ndarray:
         """Unknowns whose MLS values at the stencils' points are ``values`` (N, len(fields)).
 
         MLS is not interpolating: the value matrix ``Phi[i, index[i, k]] = phi[i, k]`` is not the
@@ -318,14 +319,16 @@ class Model:
         ``Phi x_f = values_f`` (one sparse LU of ``Phi``, shared by the fields) gives the state
         that carries the points' values onto the new stencils, so the next step's residual holds
         only the physical change.  With ``refit`` (a :class:`Refit` kept across the steps of a
-        run) the solve iterates on an earlier factorisation instead of a new one, to round-off.
+        run) the solve iterates on an earlier factorisation instead of a new one, to round-off,
+        from ``guess`` (flat unknowns, e.g. the state these values came from) if given.
         Flattened in the layout of :attr:`fields`.
         """
         values = np.asarray(values, dtype=np.float64)
         if refit is None:
             fitted = sparse_lu(mls.value_matrix(stencils)).solve(values)
         else:
-            fitted = refit.solve(values, stencils)
+            start = None if guess is None else np.asarray(guess, dtype=np.float64).reshape(values.shape[::-1]).T
+            fitted = refit.solve(values, stencils, start)
         return fitted.T.reshape(-1).copy()
 
     def initial_state(self, points: np.ndarray) -> np.ndarray:
@@ -393,8 +396,16 @@ class Refit:
     solve's to round-off.  The current ``Phi`` is factorised when the iterations did not
     converge within ``max_iter`` (then it is solved directly), or needed more than
     ``refresh`` (for the next steps: the factors have aged).  The first solve factorises.
-    On fsw_paper: 5-7 iterations of 0.3 ms and a factorisation every 4 steps, against a
-    SuperLU factorisation (5-7 ms) every step (docs/profile_host_step.md).
+
+    The iterations start from a given ``start`` (a Lagrangian run passes the state it just
+    solved, whose values on the previous stencils are ``values``: it is off by one step's
+    change of ``Phi``) or else from ``LU0^{-1} values`` (off by the change since ``LU0``, and
+    one solve more).  ``refresh`` = 7 balances the two costs: on 60 steps of fsw_paper
+    (replayed, with rezonings) 6.2 solves a step and a factorisation every 7.5 steps, against
+    6.9 and one every 4 steps with the previous start and ``refresh`` = 6 (0.22 ms a solve,
+    2.5-5 ms a factorisation), each result within 3e-15 of the direct solve's (per field,
+    relative to max |x|).  Before: a SuperLU factorisation every step
+    (docs/profile_host_step.md).
 
     Pickles as the factorised matrix (the factors are remade from it on load, bit-identically,
     so a resumed run refits exactly as an uninterrupted one).
@@ -407,7 +418,7 @@ class Refit:
         SuperLU factorisations of ``Phi`` made.
     """
 
-    def __init__(self, tol: float = 1e-15, max_iter: int = 20, refresh: int = 6):
+    def __init__(self, tol: float = 1e-15, max_iter: int = 20, refresh: int = 7):
         self.tol, self.max_iter, self.refresh = tol, max_iter, refresh
         self.matrix = None
         self._lu = None
@@ -426,15 +437,16 @@ class Refit:
         self._lu = sparse_lu(self.matrix)
         self.factorizations += 1
 
-    def solve(self, values: np.ndarray, stencils: mls.Stencils) -> np.ndarray:
-        """Nodal parameters (N, F) whose MLS values at the stencils' points are ``values`` (N, F)."""
+    def solve(self, values: np.ndarray, stencils: mls.Stencils, start: np.ndarray | None = None) -> np.ndarray:
+        """Nodal parameters (N, F) whose MLS values at the stencils' points are ``values`` (N, F),
+        iterated from ``start`` (N, F) if given."""
         if self._lu is not None:
             index, phi = np.asarray(stencils.index), np.asarray(stencils.phi)
             n, m = index.shape
             # Phi as CSR straight from the stencils (m entries a row, padding adds zeros)
             matrix = scipy.sparse.csr_matrix((phi.reshape(-1), index.reshape(-1), np.arange(0, n * m + 1, m)),
                                              shape=(n, n))
-            x = self._lu.solve(values)
+            x = self._lu.solve(values) if start is None else np.array(start)
             last = None
             for it in range(1, self.max_iter + 1):
                 dx = self._lu.solve(values - matrix @ x)

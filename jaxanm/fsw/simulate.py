@@ -276,7 +276,7 @@ class _Recorder:
         self._record(self.t, material, material_values, save)
         st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width,
                             neighbours=self.neighbours)
-        return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st, self.refit))
+        return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st, self.refit, guess=x))
 
     def result(self, solver, stats) -> FSWResult:
         """Assemble the :class:`FSWResult`."""
