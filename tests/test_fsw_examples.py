@@ -69,7 +69,10 @@ def test_fsw_scene_example(tmp_path, capsys):
     angle = np.arctan2(pts[moved, 1], pts[moved, 0]) - np.arctan2(start[moved, 1], start[moved, 0])
     angle = np.mod(angle + np.pi, 2 * np.pi) - np.pi
     assert np.allclose(angle, scene.tool.omega * 0.005, rtol=0, atol=1e-9)
-    assert np.allclose(np.hypot(*pts[tool].T), r0, rtol=1e-12)
+    # each of the 5 steps turns a tool tracer by a 2x2 rotation (c^2 + s^2 = 1 to an ulp, two
+    # products per component): its radius drifts by ~2 eps a step, 2e-15 relative here, 500x
+    # below rtol 1e-12.  atol = 0: numpy's default 1e-8 would allow 1e-5 of these 1e-3 m radii
+    assert np.allclose(np.hypot(*pts[tool].T), r0, rtol=1e-12, atol=0)
 
     # the figures a user gets
     paths = ex.save_figures(result, history, tmp_path)
