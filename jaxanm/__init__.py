@@ -17,6 +17,7 @@ from .sensitivity import Sensitivities, sensitivities, value_and_grad
 from .series import taylor_coefficients
 from .solvers import ANM, ModifiedNewton, Newton, evaluate_series, validity_range
 from .stats import Stats
+from .step_control import StepController
 
 __all__ = [
     "ANM",
@@ -31,6 +32,7 @@ __all__ = [
     "Solution",
     "SparseJacobian",
     "Stats",
+    "StepController",
     "StepFailure",
     "color_columns",
     "detect_sparsity",

@@ -21,6 +21,7 @@ from .jacobian import detect_sparsity
 from .linalg import Factorization
 from .solvers import ANM, ModifiedNewton, Newton, Problem
 from .stats import Stats
+from .step_control import StepController
 
 AUTO_SPARSE_SIZE = 400
 """Above this many unknowns ``jacobian="auto"`` picks the sparse Jacobian."""
@@ -33,11 +34,14 @@ class Remap(NamedTuple):
     The next step starts its homotopy (or Newton iteration) from ``x`` and takes ``x`` as its
     old state, so a remapping that preserves the fields (``x`` such that the new operators
     reproduce the values the old ones gave) leaves only the physical change in the next
-    residual.  ``x`` must keep the shape of the state.
+    residual.  ``x`` must keep the shape of the state.  ``history=False`` says the remap broke
+    the continuity of what a :class:`~jaxanm.step_control.StepController` measures (e.g. a
+    re-seeded cloud): the next step is then taken without a local error estimate.
     """
 
     params: object
     x: np.ndarray
+    history: bool = True
 
 
 @dataclasses.dataclass
@@ -56,7 +60,7 @@ class Solution:
     observed: dict | None = None
 
 
-def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at):
+def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at, controller=None):
     """Check a run's inputs before any computation (:class:`InputError` naming the fix);
     return ``x0`` and ``scale`` as float64 arrays.  Shared with :mod:`jaxanm.sensitivity`."""
     x0 = np.asarray(x0, dtype=np.float64)
@@ -82,6 +86,8 @@ def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_a
         raise InputError("give save_every or save_at, not both")
     if save_every is not None and not (isinstance(save_every, int) and save_every >= 1):
         raise InputError(f"save_every must be an integer >= 1, got {save_every!r}")
+    if controller is not None and not isinstance(controller, StepController):
+        raise InputError(f"controller must be jaxanm.StepController(...) or None, got {controller!r}")
     return x0, scale
 
 
@@ -142,7 +148,8 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
               save_at=None, save_params: bool = False, after_step: Callable | None = None,
               observe: Callable | None = None, progress: bool = False, callback: Callable | None = None,
               max_dt_halvings: int = 4, checkpoint=None, checkpoint_every: int = 0,
-              resume: bool = False, host_state: tuple | None = None) -> Solution:
+              resume: bool = False, host_state: tuple | None = None,
+              controller: StepController | None = None) -> Solution:
     """Integrate ``R(x_new, x_old, t_new, dt, params) = 0`` by implicit Euler steps from t0 to t1.
 
     Parameters
@@ -156,7 +163,8 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         them on the device once (and again each time ``after_step`` changes them): the
         residual and the hooks receive them as jax arrays.
     t0, t1, dt : float
-        Time span and step; the last step is shortened to end exactly at t1.
+        Time span and step; the last step is shortened to end exactly at t1.  With a
+        ``controller``, ``dt`` is the first step's size.
     solver : ANM | Newton | ModifiedNewton
         Nonlinear step solver.
     scale : float or array (n,)
@@ -167,7 +175,8 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     sparsity : scipy sparse matrix, callable ``params -> pattern``, or None
         Jacobian sparsity pattern; None detects it from dense probes (small problems).
     save_every, save_at :
-        Save every k-th step, or at the steps nearest to the given times (t0 and t1 always).
+        Save every k-th step, or at the steps nearest to the given times (t0 and t1 always;
+        with a ``controller`` the steps end exactly at the ``save_at`` times).
     save_params : bool
         Also keep ``params`` at the saved times (e.g. moving point clouds).
     after_step : callable ``(t_new, x_new, params) -> params | Remap(params, x)``
@@ -182,7 +191,8 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     callback : callable ``(t_new, x_new, stats)``
         Called after every accepted step.
     max_dt_halvings : int
-        When a step fails, it is redone as two half steps, recursively up to this depth.
+        When a step fails, it is redone as two half steps, recursively up to this depth (with a
+        ``controller``: retried at a quarter of its size, at most this many times in a row).
     checkpoint : path, optional
         Checkpoint file.  Written atomically every ``checkpoint_every`` steps, at the end, and
         when the run is interrupted (KeyboardInterrupt/SIGINT, SIGTERM) or fails.
@@ -197,6 +207,10 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         the first step.  ``get`` is only called between steps, never while a step is being
         recorded (SIGINT/SIGTERM are deferred then), so the snapshot always belongs to the
         checkpoint's step.
+    controller : StepController, optional
+        Adaptive step sizes from a local error estimate (:mod:`jaxanm.step_control`); the
+        accepted sizes are in ``stats.step_sizes``, the steps refused by the error test in
+        ``stats.rejected_steps``.  None: fixed steps of ``dt``.
 
     Returns
     -------
@@ -211,7 +225,7 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         residual is not finite; the message gives step, time, a_max and residual norm.  The
         exception (and a ``KeyboardInterrupt``) carries the run's statistics so far as ``stats``.
     """
-    x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at)
+    x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at, controller)
     if checkpoint_every and checkpoint is None:
         raise InputError("checkpoint_every needs a checkpoint path: pass checkpoint='run.ckpt'")
     if resume and checkpoint is None:
@@ -228,7 +242,8 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     if sparsity is not None and not (callable(sparsity) or scipy.sparse.issparse(sparsity)):
         raise InputError("sparsity must be a scipy sparse matrix or a callable params -> matrix")
     n_steps = max(1, math.ceil((t1 - t0) / dt - 1e-9))
-    fingerprint = {"n": n, "t0": float(t0), "t1": float(t1), "dt": float(dt), "solver": repr(solver)}
+    fingerprint = {"n": n, "t0": float(t0), "t1": float(t1), "dt": float(dt), "solver": repr(solver),
+                   "controller": _describe(controller)}
 
     run = _RunState(k=0, t=float(t0), x=x0, params=params, stats=Stats(), ts=[float(t0)], xs=[x0.copy()],
                     ps=[to_host(params)] if save_params else None, observed=_observation(observe, t0, x0, params, None))
@@ -248,7 +263,8 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         stepper.fact = Factorization(kstar)
         stats.resumes += 1
     saves = _save_steps(t0, dt, n_steps, save_every, save_at)
-    bar = _progress_bar(n_steps, t1 - t0, progress, initial=run.k)
+    save_times = sorted({float(v) for v in np.atleast_1d(save_at) if t0 < v < t1}) if save_at is not None else []
+    bar = _progress_bar(None if controller else n_steps, t1 - t0, progress, initial=run.k)
 
     def advance(x, t, h, step, depth):
         """One step of size h, split in halves on failure; returns the state and |R|_inf there.
@@ -258,19 +274,7 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         failed step).
         """
         try:
-            # numpy scalars: a jnp scalar costs a device dispatch per conversion (13 % of a small step)
-            t_new, h_new = np.float64(t + h), np.float64(h)
-            x_new = stepper.step(step, x, t_new, h_new, run.params)
-            r_new = stepper.accepted_residual()
-            if r_new is None:
-                r_new = stepper.problem.residual(x_new, x, t_new, h_new, run.params)
-            r_norm = float(np.max(np.abs(r_new)))
-            if not (np.isfinite(r_norm) and np.all(np.isfinite(x_new))):
-                raise NonFiniteError(f"the accepted state has {int(np.sum(~np.isfinite(x_new)))} non-finite "
-                                     "entries or a non-finite residual", step=step, t=t_new,
-                                     amax=stats.amax[-1] if stats.amax and stepper.reuses_kstar else None,
-                                     residual_norm=r_norm)
-            return x_new, r_norm
+            return solve_step(x, t, h, step)
         except StepFailure:
             if depth >= max_dt_halvings:
                 raise
@@ -278,34 +282,107 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
             xm, _ = advance(x, t, h / 2, step, depth + 1)
             return advance(xm, t + h / 2, h / 2, step, depth + 1)
 
+    def solve_step(x, t, h, step):
+        """One step of size h by the solver, its accepted state checked (see ``advance``)."""
+        # numpy scalars: a jnp scalar costs a device dispatch per conversion (13 % of a small step)
+        t_new, h_new = np.float64(t + h), np.float64(h)
+        x_new = stepper.step(step, x, t_new, h_new, run.params)
+        r_new = stepper.accepted_residual()
+        if r_new is None:
+            r_new = stepper.problem.residual(x_new, x, t_new, h_new, run.params)
+        r_norm = float(np.max(np.abs(r_new)))
+        if not (np.isfinite(r_norm) and np.all(np.isfinite(x_new))):
+            raise NonFiniteError(f"the accepted state has {int(np.sum(~np.isfinite(x_new)))} non-finite "
+                                 "entries or a non-finite residual", step=step, t=t_new,
+                                 amax=stats.amax[-1] if stats.amax and stepper.reuses_kstar else None,
+                                 residual_norm=r_norm)
+        return x_new, r_norm
+
+    def controlled_step(k):
+        """Step k with a controller: sizes by the local error test; returns ``(t_new, x_new,
+        r_norm)`` and leaves the next proposal in ``run.h_next``."""
+        h = run.h_next if run.h_next is not None else float(dt)
+        y_now = controller.measured(run.x, run.params) if run.history is not None else None
+        failures = 0
+        while True:
+            # end exactly on the next save time or on t1 when the step reaches it (or falls
+            # short of it by a sliver the next step could not resolve)
+            t_new = run.t + h
+            for end in [v for v in save_times if v > run.t][:1] + [float(t1)]:
+                if t_new >= end - _MIN_STEP * (t1 - t0):
+                    t_new = end
+                    break
+            h = t_new - run.t
+            try:
+                x_new, r_norm = solve_step(run.x, run.t, t_new - run.t, k)
+            except StepFailure:
+                if failures >= max_dt_halvings:
+                    raise
+                failures += 1
+                stats.dt_halvings += 1
+                h = controller.clip(h / 4)
+                continue
+            if y_now is None:  # no earlier step to estimate with: accepted as proposed
+                run.h_next = controller.clip(h)
+                break
+            y_before, h_prev = run.history
+            err = controller.error(controller.measured(x_new, run.params), y_now, y_before, t_new - run.t,
+                                   h_prev, scale)
+            if err > 1 and h > controller.dt_min:  # refused: retried from x_n with a smaller step
+                if h <= _MIN_STEP * (t1 - t0):
+                    raise StepFailure(f"the local error test still fails (error {err:.3g} times the tolerance) "
+                                      f"at a step of {h:.3g}: give the controller a larger rtol/atol or a "
+                                      "dt_min at which to accept such steps", step=k, t=t_new)
+                stats.rejected_steps += 1
+                h = controller.propose(h, err)
+                continue
+            run.h_next = controller.propose(t_new - run.t, err)
+            break
+        run.history = (y_now if y_now is not None else controller.measured(run.x, run.params), t_new - run.t)
+        stats.step_sizes.append(t_new - run.t)
+        return t_new, x_new, r_norm
+
     def save_checkpoint():
         stats.close(previous_wall + time.perf_counter() - start)
         run.dump(checkpoint, fingerprint, getattr(stepper.fact, "matrix", None) if stepper.reuses_kstar else None,
                  host=None if host_state is None else host_state[0]())
 
+    def record(k, t_new, x_new, r_norm, saved):
+        """Hand an accepted step to the hooks and record it (signals wait meanwhile)."""
+        guard.hold()  # from here to release(): signals wait, the step is recorded whole
+        stats.residual_norm.append(r_norm)
+        stats.time_steps += 1
+        params_new = run.params if after_step is None else after_step(t_new, x_new, run.params)
+        if isinstance(params_new, Remap):
+            if not params_new.history:
+                run.history = None
+            params_new, x_new = params_new.params, _remapped_state(params_new.x, x_new)
+        if params_new is not run.params:
+            params_new = on_device(params_new)
+        run.advance(k, t_new, x_new, params_new, saved=saved, observe=observe)
+        guard.release()
+        if callback is not None:
+            callback(t_new, x_new, stats)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(t=f"{t_new:.4g}", factorizations=stats.factorizations, refresh=False)
+        if checkpoint_every and k % checkpoint_every == 0:
+            save_checkpoint()
+
     guard = None
     try:
         with sigterm_as_interrupt() as guard:
-            for k in range(run.k + 1, n_steps + 1):
-                t_new = t0 + k * dt if k < n_steps else float(t1)
-                x_new, r_norm = advance(run.x, run.t, t_new - run.t, k, 0)
-                guard.hold()  # from here to release(): signals wait, the step is recorded whole
-                stats.residual_norm.append(r_norm)
-                stats.time_steps += 1
-                params_new = run.params if after_step is None else after_step(t_new, x_new, run.params)
-                if isinstance(params_new, Remap):
-                    params_new, x_new = params_new.params, _remapped_state(params_new.x, x_new)
-                if params_new is not run.params:
-                    params_new = on_device(params_new)
-                run.advance(k, t_new, x_new, params_new, saved=k in saves, observe=observe)
-                guard.release()
-                if callback is not None:
-                    callback(t_new, x_new, stats)
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(t=f"{t_new:.4g}", factorizations=stats.factorizations, refresh=False)
-                if checkpoint_every and k % checkpoint_every == 0:
-                    save_checkpoint()
+            if controller is None:
+                for k in range(run.k + 1, n_steps + 1):
+                    t_new = t0 + k * dt if k < n_steps else float(t1)
+                    x_new, r_norm = advance(run.x, run.t, t_new - run.t, k, 0)
+                    record(k, t_new, x_new, r_norm, saved=k in saves)
+            else:
+                while run.t < t1:
+                    k = run.k + 1
+                    t_new, x_new, r_norm = controlled_step(k)
+                    saved = (t_new == t1 or t_new in save_times or (save_at is None and k % (save_every or 1) == 0))
+                    record(k, t_new, x_new, r_norm, saved=saved)
     except BaseException as exc:
         if checkpoint is not None and not (guard is not None and guard.held):  # not if recording a step itself failed
             save_checkpoint()  # keep everything computed up to the last accepted step
@@ -320,6 +397,22 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         save_checkpoint()
     observed = None if observe is None else {key: np.asarray(v) for key, v in run.observed.items()}
     return Solution(ts=np.asarray(run.ts), xs=np.asarray(run.xs), stats=stats, params=run.ps, observed=observed)
+
+
+_MIN_STEP = 1e-12
+"""A step refused by the error test below this fraction of the span is a failure (the error
+estimate is then round-off or a discontinuity, not the time discretisation)."""
+
+
+def _describe(controller) -> dict | None:
+    """The controller's settings for a checkpoint's fingerprint (its error_map by name: a
+    function's repr holds its address, which differs from process to process)."""
+    if controller is None:
+        return None
+    d = {f.name: getattr(controller, f.name) for f in dataclasses.fields(controller) if f.name != "error_map"}
+    em = controller.error_map
+    d["error_map"] = None if em is None else getattr(em, "__qualname__", type(em).__name__)
+    return d
 
 
 def _remapped_state(x, like):
@@ -357,6 +450,8 @@ class _RunState:
     xs: list
     ps: list | None
     observed: dict | None
+    h_next: float | None = None  # with a controller: the size proposed for the next step
+    history: tuple | None = None  # with a controller: (measured state before the last step, its size)
 
     def advance(self, k, t, x, params, *, saved: bool, observe) -> None:
         """Record an accepted step."""
@@ -384,7 +479,7 @@ class _RunState:
                 f"checkpoint {path} belongs to another run ({payload['fingerprint']}), not to this one "
                 f"({fingerprint}); use a fresh output directory or the same settings"
             )
-        fields = {f.name: payload[f.name] for f in dataclasses.fields(cls)}
+        fields = {f.name: payload[f.name] for f in dataclasses.fields(cls) if f.name in payload}
         return cls(**fields), payload["kstar"], payload.get("host_state")
 
 

@@ -22,8 +22,10 @@ class Stats:
     of each time step (for one accepted through its Padé approximant, the approximant's range)
     and ``orders`` the order of that series (the maximum order unless the ANM is
     order-adaptive); ``residual_norm`` the max-norm of the step residual at each accepted
-    state.  ``wall_time`` splits ``wall_time_s`` into ``jacobian``, ``factorize``, ``series``,
-    ``solve`` (triangular solves) and ``other``.
+    state.  With a step controller (:class:`jaxanm.StepController`), ``step_sizes`` holds the
+    size of each accepted step and ``rejected_steps`` counts the steps its error test refused
+    (``dt_halvings`` counts the solver failures).  ``wall_time`` splits ``wall_time_s`` into
+    ``jacobian``, ``factorize``, ``series``, ``solve`` (triangular solves) and ``other``.
     """
 
     factorizations: int = 0
@@ -35,10 +37,12 @@ class Stats:
     substeps: int = 0
     pade_accepted: int = 0
     dt_halvings: int = 0
+    rejected_steps: int = 0
     resumes: int = 0
     amax: list = dataclasses.field(default_factory=list)
     orders: list = dataclasses.field(default_factory=list)
     residual_norm: list = dataclasses.field(default_factory=list)
+    step_sizes: list = dataclasses.field(default_factory=list)
     wall_time_s: float = 0.0
     wall_time: dict = dataclasses.field(default_factory=lambda: dict.fromkeys(TIMER_KEYS, 0.0))
 
@@ -62,11 +66,12 @@ class Stats:
         d = dataclasses.asdict(self)
         d["amax"] = [float(a) for a in self.amax]
         d["residual_norm"] = [float(r) for r in self.residual_norm]
+        d["step_sizes"] = [float(h) for h in self.step_sizes]
         return d
 
     def summary(self) -> dict:
         """The headline numbers (no per-step lists), for printing side by side."""
         d = self.as_dict()
-        del d["amax"], d["residual_norm"], d["orders"]
+        del d["amax"], d["residual_norm"], d["orders"], d["step_sizes"]
         d["wall_time"] = {k: round(v, 4) for k, v in self.wall_time.items()}
         return d

@@ -1,0 +1,131 @@
+"""Adaptive implicit-Euler steps (jaxanm.step_control, integrate(controller=...)), against the
+closed forms of the linear decay x' = -lam x.
+
+For x' = -lam x one implicit Euler step of size h from x_n gives x_n / (1 + lam h); the exact
+solution gives x_n exp(-lam h), so the local error is
+
+    LE = x_n (1/(1 + lam h) - exp(-lam h)) = x_n (lam^2 h^2 / 2 - 5 lam^3 h^3 / 6 + ...).
+
+Milne's estimate with an equal previous step, (x_{n+1} - x_pred) / 2 with x_pred = x_n (1 - lam h),
+is x_n (lam^2 h^2 / 2 - lam^3 h^3 / 2 + ...): the two agree to a relative (2/3) lam h + O(lam^2 h^2).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import jaxanm
+
+LAM = 3.0
+
+
+def decay(x, x_old, t, dt, p):
+    """Implicit Euler step residual of x' = -lam x."""
+    return (x - x_old) / dt + p["lam"] * x
+
+
+def _local_error(x_n, h, lam=LAM):
+    return x_n * (1.0 / (1.0 + lam * h) - math.exp(-lam * h))
+
+
+@pytest.mark.parametrize("lam_h", [1e-3, 1e-2, 5e-2])
+def test_milne_estimate_is_the_local_error_to_first_order(lam_h):
+    h = lam_h / LAM
+    x_before = 1.0
+    x_now = x_before / (1 + LAM * h)
+    x_new = x_now / (1 + LAM * h)
+    ctl = jaxanm.StepController(rtol=0.0, atol=1.0)
+    # with atol = 1, scale = 1 and one unknown the weighted norm is |estimate|
+    est = ctl.error(np.array([x_new]), np.array([x_now]), np.array([x_before]), h, h, np.ones(1))
+    exact = abs(_local_error(x_now, h))
+    # the expansion above: relative difference (2/3) lam h + O((lam h)^2); lam h bounds it for lam h <= 0.05
+    assert abs(est / exact - 1) <= lam_h
+
+
+def test_accepted_steps_meet_the_tolerance_and_grow_as_the_solution_decays():
+    """Every accepted step's true local error is within its tolerance, up to the estimate's own
+    first-order error (1 + lam h), and the steps grow as x decays: with atol fixed the
+    accepted h is about sqrt(2 atol / (lam^2 x)), and x falls by exp(-6) over the span, so h
+    grows by about exp(3) = 20 (asserted: 10, the first steps being a transient of the
+    controller from the initial dt)."""
+    rtol, atol = 0.0, 1e-6
+    ctl = jaxanm.StepController(rtol=rtol, atol=atol)
+    sol = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, t0=0.0, t1=2.0, dt=1e-3, controller=ctl,
+                           solver=jaxanm.Newton(tol=1e-12), save_every=1)
+    xs, ts, hs = sol.xs[:, 0], sol.ts, np.array(sol.stats.step_sizes)
+    assert len(hs) == len(ts) - 1 and np.allclose(np.diff(ts), hs, rtol=0, atol=1e-15)
+    for n in range(1, len(hs)):  # the first step is taken unchecked (no history)
+        h = hs[n]
+        assert abs(_local_error(xs[n], h)) <= (1 + LAM * h) * atol
+    assert hs[-2] > 10 * hs[1]
+    assert ts[-1] == 2.0
+
+
+def test_tighter_tolerance_gives_smaller_global_error_and_more_steps():
+    """A first-order method under error-per-step control: N ~ tol^(-1/2) steps, global error
+    ~ N tol ~ tol^(1/2).  Between tol = 1e-5 and 1e-7 the error must fall and the steps rise,
+    each by a factor of about 10; asserted is the direction and at least 3 of that 10 (the
+    controller's safety factor and the rounding of N move it, not by a factor of 3)."""
+    out = {}
+    for tol in (1e-5, 1e-7):
+        sol = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, t0=0.0, t1=1.0, dt=1e-4,
+                               controller=jaxanm.StepController(rtol=0.0, atol=tol), solver=jaxanm.Newton(tol=1e-12))
+        out[tol] = (abs(sol.xs[-1, 0] - math.exp(-LAM)), sol.stats.time_steps)
+    (e5, n5), (e7, n7) = out[1e-5], out[1e-7]
+    assert e7 < e5 / 3 and n7 > 3 * n5
+
+
+def test_save_times_are_hit_exactly_and_a_too_large_step_is_refused():
+    save_at = [0.3, 0.7]
+    sol = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, t0=0.0, t1=1.0, dt=0.01, save_at=save_at,
+                           controller=jaxanm.StepController(rtol=0.0, atol=1e-6), solver=jaxanm.Newton(tol=1e-12))
+    assert list(sol.ts) == [0.0, 0.3, 0.7, 1.0]
+    # first step unchecked at 0.01 (LE ~ 4.5e-4 > atol): the second, proposed equal, is refused
+    assert sol.stats.rejected_steps >= 1
+
+
+def test_resume_with_a_controller_is_bit_identical(tmp_path):
+    kw = dict(t0=0.0, t1=1.0, dt=1e-3, solver=jaxanm.ANM(order=5, tol=1e-8), save_every=1,
+              controller=jaxanm.StepController(rtol=1e-4, atol=1e-6))
+    full = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, **kw)
+    path = tmp_path / "run.ckpt"
+
+    def stop_at_5(t, x, stats):
+        if stats.time_steps == 5:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, checkpoint=path, callback=stop_at_5, **kw)
+    resumed = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, checkpoint=path, resume=True, **kw)
+    assert np.array_equal(resumed.ts, full.ts) and np.array_equal(resumed.xs, full.xs)
+    assert resumed.stats.step_sizes == full.stats.step_sizes
+
+
+def test_error_map_measures_other_quantities():
+    """The error in y = 2 x is twice the error in x: with the same atol the controller takes
+    smaller steps, about 1/sqrt(2) of them (LE ~ h^2)."""
+    kw = dict(t0=0.0, t1=1.0, dt=1e-4, solver=jaxanm.Newton(tol=1e-12))
+    plain = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, controller=jaxanm.StepController(rtol=0, atol=1e-6), **kw)
+    doubled = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, **kw,
+                               controller=jaxanm.StepController(rtol=0, atol=1e-6, error_map=lambda x, p: 2 * x))
+    assert doubled.stats.time_steps > plain.stats.time_steps
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"rtol": -1.0}, "rtol must be a finite number >= 0"),
+    ({"rtol": 0.0, "atol": 0.0}, "rtol > 0 or atol > 0"),
+    ({"dt_min": 1.0, "dt_max": 0.5}, "dt_min < dt_max"),
+    ({"shrink": 1.5}, "shrink < 1 < grow"),
+])
+def test_bad_controller_settings_are_refused(kw, match):
+    with pytest.raises(jaxanm.InputError, match=match):
+        jaxanm.StepController(**kw)
+
+
+def test_controller_must_be_a_step_controller():
+    with pytest.raises(jaxanm.InputError, match="controller must be jaxanm.StepController"):
+        jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, t0=0.0, t1=1.0, dt=0.1, solver=jaxanm.Newton(),
+                         controller={"rtol": 1e-3})
