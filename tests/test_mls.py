@@ -393,11 +393,16 @@ def test_convergence_rates():
     dr = 1/8 .. 1/128 (evaluate_at, 797 targets).
     Theory for a quadratic basis: value O(dr^3), first derivatives O(dr^2), second O(dr).
     Measured (value / first / second derivatives):
-      jittered cloud, at nodes:   2.9 / 2.0 2.1 / 1.0 0.9 1.2
+      jittered clouds, at nodes:  2.9 / 2.0 2.0 / 1.0 1.0 1.0  (8 pooled; one: 2.9 / 2.0 2.1 / 1.0 0.9 1.2)
       regular grid, off nodes:    3.0 / 2.0 2.0 / 1.0 1.1 1.0
       regular grid, at nodes:     4.0 / 2.0 2.0 / 2.0 2.0 2.0 -- superconvergence: the stencil
         is point-symmetric, odd error terms cancel (as for central differences).
     Asserted: slope > theoretical order - 0.3 (superconvergent orders for the regular nodes).
+    The jittered errors pool 8 jitter realisations per dr: one cloud's slope is one draw of a
+    spread (few nodes in the window at dr = 1/8, ~10), sd up to 0.13 (dyy), and 3.8 % of 800
+    single clouds missed order - 0.3.  Pooled over 8, the slopes' sd is <= 0.057 and their
+    mean within 0.03 of the order (100 groups of 8): 0.3 is >= 4.8 sd.  The regular cases'
+    slopes (random targets) spread by sd <= 0.02 around the order (+0.065 at most, pre-asymptotic).
     """
     drs = np.array([1 / 8, 1 / 16, 1 / 32, 1 / 64, 1 / 128])
     cases = {
@@ -411,21 +416,28 @@ def test_convergence_rates():
         for dr in drs:
             g = np.arange(0.0, 1.0 + 1e-9, dr)
             x, y = np.meshgrid(g, g)
-            points = jitter(np.c_[x.ravel(), y.ravel()], dr, amplitude, seed=int(1 / dr))
-            if at_nodes:
-                inside = np.flatnonzero(np.all((points > 0.3) & (points < 0.7), axis=1))
-                targets = points[rng.choice(inside, 797)]
-            else:
-                targets = rng.uniform(0.3, 0.7, (797, 2))
-            st = mls.evaluate_at(points, 3 * dr, targets, m_max=M)
-            f = field(points[:, 0], points[:, 1])[0]
-            exact = field(targets[:, 0], targets[:, 1])
-            errors.append([np.sqrt(np.mean((apply(st, n, f) - e) ** 2) / np.mean(e**2))
-                           for n, e in zip(NAMES, exact)])
+            squared, norms = np.zeros(len(NAMES)), np.zeros(len(NAMES))
+            for k in range(8 if amplitude else 1):
+                points = jitter(np.c_[x.ravel(), y.ravel()], dr, amplitude, seed=int(1 / dr) + 1000 * k)
+                if at_nodes:
+                    inside = np.flatnonzero(np.all((points > 0.3) & (points < 0.7), axis=1))
+                    targets = points[rng.choice(inside, 797)]
+                else:
+                    targets = rng.uniform(0.3, 0.7, (797, 2))
+                st = mls.evaluate_at(points, 3 * dr, targets, m_max=M)
+                f = field(points[:, 0], points[:, 1])[0]
+                exact = field(targets[:, 0], targets[:, 1])
+                squared += [np.sum((apply(st, n, f) - e) ** 2) for n, e in zip(NAMES, exact)]
+                norms += [np.sum(e**2) for e in exact]
+            errors.append(np.sqrt(squared / norms))
         slopes = np.polyfit(np.log(drs), np.log(np.array(errors)), 1)[0]
         for name, slope, order in zip(NAMES, slopes, orders):
             assert slope > order - 0.3, (case, name, slope)
-        assert np.array(errors)[-1, 3:].max() < 0.05, case  # second derivatives do converge
+        # second derivatives do converge: first order with the constant error / dr of the coarser
+        # levels (here <= 2.2 at dr <= 1/16, 2.5 at 1/8; over 100 pooled jitter groups <= 2.4 and
+        # 3.0) gives <= 0.023 at dr = 1/128; 0.05 allows a constant of 6.4.  Measured 0.017 (sd
+        # 3.6e-4 between pooled groups); deterministic seeds, errors far above round-off
+        assert np.array(errors)[-1, 3:].max() < 0.05, case
 
 
 def test_helpers_match_direct_sums_and_trace(clouds):
