@@ -410,6 +410,7 @@ def _describe(controller) -> dict | None:
     if controller is None:
         return None
     d = {f.name: getattr(controller, f.name) for f in dataclasses.fields(controller) if f.name != "error_map"}
+    d["error_scale"] = None if controller.error_scale is None else np.asarray(controller.error_scale).tolist()
     em = controller.error_map
     d["error_map"] = None if em is None else getattr(em, "__qualname__", type(em).__name__)
     return d

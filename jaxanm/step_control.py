@@ -22,9 +22,13 @@ is taken at the proposed size without an estimate.
 DASSL, IDA and diffrax), with the run's ``scale`` (the characteristic magnitude of each
 unknown), so ``atol`` is relative to the scale, ``rtol`` to the value.  The step is accepted
 when ``err <= 1``.  ``error_map(x, params)`` (identity by default) may measure the error in
-other quantities shaped like x: for a Lagrangian meshless scene, the field values at the
-material points, which are continuous from step to step where the nodal parameters jump at
-each stencil rebuild (:mod:`jaxanm.fsw.simulate`).
+other quantities, with their own ``error_scale``: for a meshless scene, the field values at
+the points, which are continuous from step to step where the nodal parameters of a Lagrangian
+cloud jump at each stencil rebuild; and only the differential ones, as IDA leaves algebraic
+components out of its error test.  (A quasi-static velocity carried by moving points is off
+the field at their new place by ``h |DV/Dt|`` after every move, whatever the next step's size:
+Milne's device would read that as a local error that does not shrink with h,
+:mod:`jaxanm.fsw.simulate`.)
 
 **Controller.**  The local error is O(h^2), so ``h_new = h * clip(safety * err^(-1/2),
 shrink, grow)``; a rejected step is retried from ``x_n`` with that h, an accepted one proposes
@@ -57,8 +61,11 @@ class StepController:
         (counted in ``stats.rejected_steps`` only when it is retried).
     safety, shrink, grow : float
         The controller's factor ``clip(safety * err^(-1/2), shrink, grow)``.
-    error_map : callable ``(x, params) -> array shaped like x``, optional
+    error_map : callable ``(x, params) -> array``, optional
         Quantities the error is measured in (default: the unknowns themselves).
+    error_scale : float or array, optional
+        Characteristic magnitude of each quantity of ``error_map`` (default: the run's
+        ``scale``, for quantities shaped like x).
     """
 
     rtol: float = 1e-3
@@ -69,6 +76,7 @@ class StepController:
     shrink: float = 0.2
     grow: float = 5.0
     error_map: Callable | None = None
+    error_scale: object = None
 
     def __post_init__(self):
         for name in ("rtol", "atol"):
@@ -84,7 +92,9 @@ class StepController:
             raise InputError("StepController needs 0 < safety <= 1 and 0 < shrink < 1 < grow, got "
                              f"safety={self.safety!r}, shrink={self.shrink!r}, grow={self.grow!r}")
         if self.error_map is not None and not callable(self.error_map):
-            raise InputError("StepController.error_map must be a callable (x, params) -> array shaped like x")
+            raise InputError("StepController.error_map must be a callable (x, params) -> array")
+        if self.error_scale is not None and not np.all(np.isfinite(self.error_scale) & (np.asarray(self.error_scale) > 0)):
+            raise InputError("StepController.error_scale must be positive and finite")
 
     def measured(self, x, params) -> np.ndarray:
         """The quantities the local error is measured in, at state ``x`` on ``params``."""
@@ -92,9 +102,11 @@ class StepController:
 
     def error(self, y_new, y_now, y_before, h: float, h_prev: float, scale) -> float:
         """Weighted RMS norm of the local error of the step ``y_now -> y_new`` of size h, the
-        step before it ``y_before -> y_now`` of size ``h_prev`` (Milne's device)."""
+        step before it ``y_before -> y_now`` of size ``h_prev`` (Milne's device); ``scale``:
+        the run's, used unless the controller has its own ``error_scale``."""
         predicted = y_now + (h / h_prev) * (y_now - y_before)
         local = 0.5 * (y_new - predicted)
+        scale = scale if self.error_scale is None else self.error_scale
         weight = self.atol * scale + self.rtol * np.abs(y_new)
         return float(np.sqrt(np.mean((local / weight) ** 2)))
 

@@ -102,6 +102,8 @@ def test_max_rate_reaches_modified_newton():
     ({"solver.pade": "yes"}, "solver.pade", "true or false"),
     ({"solver.pade": "true", "solver.order": 2}, "solver.pade", "solver.order >= 3"),
     ({"solver.adaptive": 1}, "solver.adaptive", "true or false"),
+    ({"time.atol": -1e-5}, "time.atol", ">= 0"),
+    ({"time.adaptive": "true", "time.atol": 0, "time.rtol": 0}, "time.atol", "must be > 0 with time.adaptive"),
     ({"effects": "viscous,magic"}, "effects", "known effects"),
     ({"effects": "dissipation,conduction"}, "effects", "needs ['viscous']"),
     ({"effects": "viscous,lagrangian,tracers"}, "effects", "exclude each other"),

@@ -129,3 +129,19 @@ def test_controller_must_be_a_step_controller():
     with pytest.raises(jaxanm.InputError, match="controller must be jaxanm.StepController"):
         jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, t0=0.0, t1=1.0, dt=0.1, solver=jaxanm.Newton(),
                          controller={"rtol": 1e-3})
+
+
+def test_fsw_scene_with_adaptive_steps():
+    """time.adaptive on the Lagrangian fsw_small: steps end exactly on the scene's save times,
+    stay within the point-motion bound, and the probes are recorded at every accepted step."""
+    from jaxanm.fsw.scene import load_scene
+    from jaxanm.fsw.simulate import motion_dt_max, run
+
+    scene = load_scene("fsw_small").with_overrides({"time.adaptive": "true", "time.atol": "1e-5", "time.t_end": "0.003",
+                                                    "time.save": "0.001", "time.dt": "1e-4"})
+    res = run(scene)
+    hs = np.array(res.stats.step_sizes)
+    assert list(res.t) == [0.0, 0.001, 0.003]
+    assert len(hs) == res.stats.time_steps == len(res.probes["t"]) - 1
+    # the sizes t_{k+1} - t_k telescope to t_end up to one rounding each (steps * eps * t_end ~ 1e-17)
+    assert hs.max() <= motion_dt_max(scene) and abs(hs.sum() - 0.003) <= len(hs) * np.finfo(float).eps * 0.003

@@ -326,16 +326,28 @@ class Time(_Section):
     """Implicit Euler step ``dt``, end time ``t_end`` (s) and the times at which fields are saved.
 
     Save times after ``t_end`` are ignored (so a shortened run keeps the scene's list);
-    t = 0 and t = t_end are always saved.
+    t = 0 and t = t_end are always saved.  ``adaptive = true``: step sizes from a local error
+    estimate (:class:`jaxanm.StepController`), ``dt`` the first step's, the local error of the
+    field values at the points below ``atol`` times their scale (omega R1 for u and v, T0 for
+    T) plus ``rtol`` times their size; a Lagrangian scene also bounds the steps by the point
+    motion (:func:`jaxanm.fsw.simulate.motion_dt_max`).
     """
 
     _name = "time"
     dt: float = 1e-4
     t_end: float = 0.7
     save: tuple[float, ...] = ()
+    adaptive: bool = False
+    rtol: float = 0.0
+    atol: float = 1e-5
 
     def _validate(self):
         self._positive("dt", "t_end")
+        for name in ("rtol", "atol"):
+            value = getattr(self, name)
+            _check(f"time.{name}", value, value >= 0, "must be >= 0")
+        _check("time.atol", self.atol, self.rtol > 0 or self.atol > 0 or not self.adaptive,
+               "time.rtol or time.atol must be > 0 with time.adaptive = true")
         _check("time.dt", self.dt, self.dt <= self.t_end, f"must be <= time.t_end = {self.t_end}")
         _check("time.dt", self.dt, self.dt * MAX_STEPS >= self.t_end,
                f"time.t_end / time.dt asks for more than {MAX_STEPS} steps: use dt >= "

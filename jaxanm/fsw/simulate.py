@@ -121,8 +121,10 @@ def _nearest_spacing(points: np.ndarray) -> np.ndarray:
 class _Recorder:
     """Host-side state of a run: moving cloud, material points, probes, saved fields and sections."""
 
-    def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_steps: set):
-        self.scene, self.model, self.save_steps = scene, model, save_steps
+    def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_steps: set,
+                 save_times: set | None = None):
+        # fixed steps save at step numbers; adaptive ones end exactly on the save times
+        self.scene, self.model, self.save_steps, self.save_times = scene, model, save_steps, save_times
         cloud = model.cloud
         self.points = cloud.points.copy()
         self.width = stencils.index.shape[1]
@@ -250,7 +252,7 @@ class _Recorder:
         x = np.asarray(x)
         values = model.values(x, params["st"])
         full = _full_values(model, values)
-        save = self.step in self.save_steps
+        save = self.step in self.save_steps if self.save_times is None else self.t in self.save_times
         if save:
             self._save_sections(x)
         if self.tracers is not None:
@@ -267,7 +269,8 @@ class _Recorder:
             at = self._values_at(x, self.markers, self.marker_neighbours)
             material_values = self._marker_values(full, at)
             material = self.markers = _move(self.markers, kind, _velocity(at), omega, dt)
-        if self._sheared(np.asarray(params["st"].index)):
+        rezoned = self._sheared(np.asarray(params["st"].index))
+        if rezoned:
             if self.markers is None:  # the material points go on from where the nodes were
                 self.markers = material
             values = self._rezone(x, values)
@@ -276,7 +279,9 @@ class _Recorder:
         self._record(self.t, material, material_values, save)
         st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width,
                             neighbours=self.neighbours)
-        return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st, self.refit, guess=x))
+        # re-seeded nodes carry other material's values: a step controller restarts its estimate
+        return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st, self.refit, guess=x),
+                            history=not rezoned)
 
     def result(self, solver, stats) -> FSWResult:
         """Assemble the :class:`FSWResult`."""
@@ -298,6 +303,44 @@ class _Recorder:
                          T=np.asarray(self.saved["T"]), material=self.model.cloud.material.copy(),
                          probes=probes, sections=sections, stats=stats, solver=solver, tracers=tracers,
                          nodes=nodes if self.rezone_times else None, rezone_times=list(self.rezone_times))
+
+
+def motion_dt_max(scene: Scene) -> float:
+    """Largest adaptive step of a Lagrangian scene: the tool edge (speed omega R1, the fastest
+    points) moves at most a tenth of the spacing dr per step.
+
+    The step controller measures the error of the fields, not of the point motion, which is
+    explicit Euler (``x <- x + dt V``): on the circular paths near the tool it drifts outwards
+    by ``omega^2 r dt / 2`` per unit time (1.4 % of r over fsw_paper's 0.7 s at its dt = 1e-4,
+    17 % at this bound of 1.25e-3 s, until a rezoning re-seeds the cloud).  The bound keeps
+    each step's motion small against the stencils (h = 3 dr) and the neighbour lists' skin
+    (h / 4); it is no error control of the motion.
+    """
+    g = scene.geometry
+    return 0.1 * g.dr / (scene.tool.omega * g.R1)
+
+
+def step_controller(scene: Scene, model: Model):
+    """The :class:`jaxanm.StepController` of a scene with ``time.adaptive`` (else None).
+
+    The local error is measured in the values of the differential fields at the points: T
+    with conduction (its scale T0), else the velocity (scale omega R1).  The velocity of a
+    conducting scene is quasi-static, algebraic up to the small inertia term, and is left out
+    as IDA leaves algebraic components out of its error test: carried by moving points it is
+    off the field at their new place by ``dt |DV/Dt|`` after each move (2e-3 of omega R1 at
+    fsw_paper's dt), which no smaller next step reduces.  Values at the points, not nodal
+    parameters: a Lagrangian cloud's parameters jump at every stencil rebuild, its values do
+    not.  Steps are bounded by :func:`motion_dt_max` when the points move.
+    """
+    tm = scene.time
+    if not tm.adaptive:
+        return None
+    fields = model.fields
+    measured = [fields.index("T")] if "T" in fields else [fields.index(f) for f in ("u", "v")]
+    scale = model.scale().reshape(len(fields), -1)[measured].ravel()
+    return jaxanm.StepController(
+        rtol=tm.rtol, atol=tm.atol, dt_max=motion_dt_max(scene) if model.effects.lagrangian else math.inf,
+        error_map=lambda x, p: model.values(x, p["st"])[:, measured].T.ravel(), error_scale=scale)
 
 
 def _save_steps(scene: Scene, n_steps: int) -> set:
@@ -388,7 +431,10 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     _, stencils, model, params, x0 = discretise(scene)
     tm = scene.time
     n_steps = max(1, math.ceil(tm.t_end / tm.dt - 1e-9))
-    recorder = _Recorder(scene, model, stencils, x0, _save_steps(scene, n_steps))
+    controller = step_controller(scene, model)
+    save_times = [t for t in tm.save_times if t > 0]
+    recorder = _Recorder(scene, model, stencils, x0, _save_steps(scene, n_steps),
+                         None if controller is None else set(save_times))
     latest = {"stats": jaxanm.Stats()}
 
     def step_done(t, x, stats):
@@ -402,9 +448,10 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     try:
         sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver,
                                scale=model.scale(), jacobian="sparse", sparsity=model.sparsity,
-                               save_at=[tm.t_end], after_step=recorder.after_step, progress=progress,
-                               callback=step_done, checkpoint=checkpoint, checkpoint_every=checkpoint_every,
-                               resume=resume, host_state=host)
+                               save_at=save_times if controller else [tm.t_end], after_step=recorder.after_step,
+                               progress=progress, callback=step_done, checkpoint=checkpoint,
+                               checkpoint_every=checkpoint_every, resume=resume, host_state=host,
+                               controller=controller)
     except (KeyboardInterrupt, jaxanm.StepFailure) as exc:
         try:  # the steps recorded so far (consistent: integrate defers signals while recording)
             exc.partial = recorder.result(solver, latest["stats"])
