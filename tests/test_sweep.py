@@ -1,14 +1,49 @@
-"""``jaxanm sweep``'s grid reader: grid files expanded into validated tasks with ids."""
+"""``jaxanm sweep``: the grid reader (units), one 2 x 2 sweep on a local Dask cluster of 2 workers,
+its rerun (nothing run again), the task's failure path and bad input.
+
+The sweep's scene is couette_small at twice its spacing (4 rings, one stationary step):
+nonlinear, so Newton and modified Newton at two tolerances give four different runs, and a few
+seconds of compilation per worker.  No assertion depends on timing.
+"""
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import json
+import math
+import shutil
+from pathlib import Path
 
+import numpy as np
 import pytest
 
-from jaxanm.fsw.scene import SolverSpec
-from jaxanm.sweep import GridError, grid_from_dict, read_grid
+from jaxanm.errors import InputError
+from jaxanm.fsw.scene import SCENES_DIR, SolverSpec
+from jaxanm.sweep import GridError, grid_from_dict, read_grid, run_sweep
+from jaxanm.sweep import runner
 from jaxanm.sweep.grid import SOLVER_KEYS
+from jaxanm.sweep.pareto import pareto_front
+from jaxanm.sweep.table import ERROR_COLUMNS, add_errors, columns
+from jaxanm.sweep.task import COST_COLUMNS, ROW_FILE, finished_row, run_task, task_spec
+
+RUN_FILES = ("summary.json", "fields.npz", "probes.csv", "fields.pvd", ROW_FILE)
+
+# Tolerances 1e-3 and 1e-8 are five decades apart: from a correction of 1e-3 one quadratic
+# Newton iteration reaches about 1e-6, not 1e-8, so the two runs of each solver stop at different
+# iterates and every error against the reference is positive (exactly, not within a margin).
+TINY_GRID = """
+scene = "tiny_couette.toml"
+reference = "newton-tol=1e-08"
+
+[overrides]
+"geometry.dr" = 1.125e-3
+
+[[solvers]]
+kind = ["newton", "mnewton"]
+tol = [1e-3, 1e-8]
+"""
+TINY_IDS = ["newton-tol=0.001", "newton-tol=1e-08", "mnewton-tol=0.001", "mnewton-tol=1e-08"]
 
 
 def grid(data: dict, **kw):
@@ -112,3 +147,136 @@ def test_grid_files_name_themselves_in_errors(tmp_path):
     broken.write_text("scene = 'couette_small'\n[[solvers]\n")
     with pytest.raises(GridError, match="broken.toml' is not valid TOML"):
         read_grid(broken)
+
+
+# --------------------------------------------------------------------------- table and plot helpers
+
+
+def test_pareto_front_keeps_the_points_nothing_beats():
+    points = [(1.0, 1e-2), (2.0, 1e-3), (3.0, 5e-3), (0.5, 1e-1), (4.0, 1e-5)]
+    assert pareto_front(points) == [(0.5, 1e-1), (1.0, 1e-2), (2.0, 1e-3), (4.0, 1e-5)]
+
+
+def test_columns_order():
+    names = columns(("time.dt", "solver.tol"), errors=True)
+    assert names[:6] == ["task", "status", "message", "reused", "time.dt", "solver.tol"]
+    assert names[6:6 + len(COST_COLUMNS)] == list(COST_COLUMNS)
+    assert names[-len(ERROR_COLUMNS):] == list(ERROR_COLUMNS)
+
+
+def test_a_task_that_fails_reports_in_its_row_and_is_not_finished(tmp_path):
+    """The worker-side failure path, run in this process: the scene cannot be built."""
+    task = grid({"solvers": {"tol": [1e-6, 1e-8]}}).tasks[0]
+    spec = task_spec(task, tmp_path / "t", compile_cache=False)
+    spec["scene"]["geometry"]["R2"] = 1e-3  # inside the tool: the worker's scene check fails
+    row = run_task(spec)
+    assert row["status"] == "failed" and row["task"] == "tol=1e-06" and row["solver.tol"] == 1e-6
+    assert row["message"].startswith("SceneError: ") and "geometry.R2" in row["message"]
+    stored = json.loads((tmp_path / "t" / ROW_FILE).read_text())
+    assert stored["status"] == "failed" and "Traceback" in stored["traceback"]
+    assert finished_row(spec) is None
+    errors = add_errors([{**row, "dir": "t"}], _any_run(tmp_path), tmp_path)[0]
+    assert errors["compare_note"] == "task failed" and math.isnan(errors["rel_err"])
+
+
+def _any_run(tmp_path: Path) -> Path:
+    """A minimal run directory (the reference of a table whose rows all failed)."""
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    for name in ("summary.json", "probes.csv"):
+        (ref / name).write_text("{}" if name.endswith("json") else "t\n0\n")
+    np.savez(ref / "fields.npz", t=np.zeros(1))
+    return ref
+
+
+# --------------------------------------------------------------------------- a real sweep
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    """The 2 x 2 grid run once on a local cluster of 2 workers: (grid path, sweep dir, result)."""
+    root = tmp_path_factory.mktemp("sweep")
+    (root / "tiny_couette.toml").write_text((SCENES_DIR / "couette_small.toml").read_text()
+                                            .replace('"couette_small"', '"tiny"'))
+    path = root / "tiny.toml"
+    path.write_text(TINY_GRID)
+    out = root / "out"
+    result = run_sweep(read_grid(path), out, workers=2, progress=False, compile_cache=False)
+    return path, out, result
+
+
+def test_sweep_writes_one_row_and_one_run_directory_per_task(sweep):
+    _, out, result = sweep
+    assert result.failed == [] and result.reused == 0 and result.notes == []
+    assert [r["task"] for r in result.rows] == TINY_IDS
+    with open(out / "results.csv", newline="") as f:
+        table = list(csv.DictReader(f))
+    assert [r["task"] for r in table] == TINY_IDS
+    assert list(table[0]) == columns(("geometry.dr", "solver.kind", "solver.tol"), errors=True)
+    for row, csv_row in zip(result.rows, table):
+        assert row["status"] == csv_row["status"] == "ok" and row["reused"] is False
+        assert row["kind"] == row["solver.kind"] and row["time_steps"] >= 1 and row["factorizations"] >= 1
+        assert row["newton_iterations"] >= 1 and row["series_orders"] == 0 and row["wall_s"] > 0
+        assert float(csv_row["wall_s"]) == row["wall_s"]  # repr: exact round trip
+        run_dir = out / row["dir"]
+        assert row["dir"] == f"runs/{row['task']}" and all((run_dir / f).is_file() for f in RUN_FILES)
+        summary = json.loads((run_dir / "summary.json").read_text())
+        assert summary["scene"]["solver"]["tol"] == row["solver.tol"]
+        assert summary["scene"]["geometry"]["dr"] == 1.125e-3 and summary["solver"]["kind"] == row["kind"]
+        assert len(list((run_dir / "vtu").glob("*.vtu"))) == summary["n_saved"]
+
+
+def test_errors_against_the_reference_task_and_the_pareto_plot(sweep):
+    _, out, result = sweep
+    assert result.reference == out / "runs" / "newton-tol=1e-08"
+    rows = {r["task"]: r for r in result.rows}
+    reference = rows.pop("newton-tol=1e-08")
+    assert reference["rel_err"] == reference["rel_err_V"] == reference["probe_err_V"] == 0.0  # itself
+    for row in rows.values():
+        assert row["compare_note"] == "" and math.isnan(row["rel_err_T"])  # isothermal: no T - T0
+        assert row["rel_err"] == row["rel_err_V"] > 0 and math.isfinite(row["rel_err"])
+    assert result.plot == out / "pareto.png" and result.plot.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_rerun_reuses_every_finished_task_without_a_cluster(sweep, monkeypatch):
+    path, out, first = sweep
+
+    def no_cluster(*args):
+        raise AssertionError("a rerun of a finished sweep must not start Dask")
+
+    monkeypatch.setattr(runner, "_client", no_cluster)
+    again = run_sweep(read_grid(path), out, progress=False)
+    assert again.reused == 4 and again.failed == []
+
+    def strip(rows):  # JSON text: NaN (absent T errors) compares equal to itself there
+        return json.dumps([{k: v for k, v in r.items() if k != "reused"} for r in rows], sort_keys=True)
+
+    assert strip(again.rows) == strip(first.rows)
+    assert all(r["reused"] is True for r in again.rows)
+
+
+def test_a_run_directory_is_finished_only_for_its_own_scene(sweep, tmp_path):
+    path, out, _ = sweep
+    g = read_grid(path)
+    copy = tmp_path / "copy"
+    shutil.copytree(out / "runs" / g.tasks[0].id, copy)
+    spec = task_spec(g.tasks[0], copy, compile_cache=False)
+    assert finished_row(spec)["task"] == g.tasks[0].id
+    other = task_spec(g.tasks[1], copy, compile_cache=False)  # another tolerance in the same directory
+    assert finished_row(other) is None
+    (copy / "fields.npz").unlink()
+    assert finished_row(spec) is None
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def test_unusable_reference_and_unreachable_scheduler_are_input_errors(tmp_path):
+    import dask
+
+    g = grid({})
+    with pytest.raises(InputError, match="not the output directory of a finished `jaxanm run`"):
+        run_sweep(g, tmp_path / "a", reference=tmp_path, progress=False)
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):  # refused at once on loopback
+        with pytest.raises(InputError, match="cannot reach the Dask scheduler at 'tcp://127.0.0.1:1'"):
+            run_sweep(g, tmp_path / "b", scheduler="tcp://127.0.0.1:1", progress=False)

@@ -1,0 +1,185 @@
+"""Run a sweep's tasks on Dask, keep the results table up to date, then errors and the Pareto plot.
+
+The sweep directory holds::
+
+    results.csv          one row per task (jaxanm.sweep.table), rewritten as each task finishes
+    pareto.png           error against wall time (with a reference run)
+    runs/<task id>/      the task's `jaxanm run --out` files and its row (jaxanm.sweep.task)
+
+Tasks run on a ``LocalCluster`` of worker processes (one thread each) on this machine, or on
+the workers of a running Dask scheduler whose address is given; they then must see the sweep
+directory at the same path (a shared file system) and have jaxanm installed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+import uuid
+from contextlib import contextmanager
+from pathlib import Path
+
+from jaxanm.errors import InputError
+from jaxanm.fsw.compare import load_run
+from jaxanm.sweep.grid import Grid, read_grid
+from jaxanm.sweep.pareto import plot_pareto
+from jaxanm.sweep.table import TABLE_NAME, add_errors, write_table
+from jaxanm.sweep.task import failed_row, finished_row, run_task, task_spec
+
+__all__ = ["PLOT_NAME", "RUNS_DIR", "SweepResult", "run_sweep"]
+
+RUNS_DIR = "runs"
+"""Sub-directory of the sweep directory holding one output directory per task."""
+PLOT_NAME = "pareto.png"
+"""File name of the Pareto plot in the sweep directory."""
+
+
+@dataclasses.dataclass
+class SweepResult:
+    """What :func:`run_sweep` did: the rows in grid order, the files written, the tasks that
+    failed, how many rows were re-read from finished runs, notes for the user and the wall time."""
+
+    rows: list
+    table: Path
+    plot: Path | None
+    reference: Path | None
+    failed: list
+    reused: int
+    notes: list
+    wall_s: float
+
+
+def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2, progress: bool = True,
+              reference=None, compile_cache: bool | None = None) -> SweepResult:
+    """Run every task of ``grid`` (a :class:`~jaxanm.sweep.grid.Grid` or a grid file path) on Dask.
+
+    Parameters
+    ----------
+    out_dir : path, optional
+        Sweep directory (default ``results/sweep-<grid name>``); see the module docstring.
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``); default a ``LocalCluster``
+        of ``workers`` processes with one thread each, on the loopback interface.
+    workers : int
+        Worker processes of the local cluster (ignored with ``scheduler``).
+    progress : bool
+        A tqdm bar over the tasks.
+    reference : path, optional
+        Output directory of the run the errors are measured against; default the grid's
+        ``reference`` task.  Without either, the table has no errors and there is no plot.
+    compile_cache : bool, optional
+        Keep compiled XLA code on disk in the workers (default: unless ``JAXANM_COMPILE_CACHE=0``,
+        :mod:`jaxanm.compile_cache`).
+
+    Tasks whose output directory holds a finished run of the same scene are not run again:
+    their rows are re-read (``reused``).  A failed task is reported in its row and the others go
+    on.  Bad input (grid, ``workers``, ``reference``, an unreachable scheduler) raises
+    :class:`~jaxanm.sweep.grid.GridError` or :class:`jaxanm.InputError` before any task runs.
+
+    From a script, call it under ``if __name__ == "__main__":``: the local cluster's worker
+    processes are spawned, and each imports the script's main module.
+    """
+    from jaxanm import compile_cache as cache
+
+    start = time.perf_counter()
+    if not isinstance(grid, Grid):
+        grid = read_grid(grid)
+    if scheduler is None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise InputError(f"workers must be an integer >= 1, got {workers!r}")
+    if reference is not None:
+        try:
+            load_run(reference)
+        except FileNotFoundError as exc:
+            raise InputError(f"reference {reference}: {exc}") from exc
+    out_dir = Path(out_dir) if out_dir is not None else Path("results") / f"sweep-{grid.name}"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    use_cache = cache.requested() if compile_cache is None else compile_cache
+    specs = [task_spec(t, out_dir / RUNS_DIR / t.id, use_cache) for t in grid.tasks]
+    rows = {}
+    for spec in specs:
+        row = finished_row(spec)
+        if row is not None:
+            rows[spec["id"]] = {**row, "reused": True}
+    reused = len(rows)
+    table = out_dir / TABLE_NAME
+
+    def ordered():
+        return [{**rows[s["id"]], "dir": f"{RUNS_DIR}/{s['id']}"} for s in specs if s["id"] in rows]
+
+    write_table(table, ordered(), grid.keys)
+    todo = [s for s in specs if s["id"] not in rows]
+    if todo:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(specs), initial=reused, desc=f"sweep {grid.name}", unit="task",
+                   dynamic_ncols=True, disable=not progress)
+        try:
+            for spec, row in _run_on_dask(todo, scheduler, workers):
+                rows[spec["id"]] = {**row, "reused": False}
+                write_table(table, ordered(), grid.keys)
+                failed = sum(r["status"] != "ok" for r in rows.values())
+                bar.set_postfix_str(f"{spec['id']} {row['status']}" + (f", {failed} failed" if failed else ""),
+                                    refresh=False)
+                bar.update(1)
+        finally:
+            bar.close()
+    result = ordered()
+    notes, plot, ref_dir = [], None, None
+    if reference is not None:
+        ref_dir, label = Path(reference), str(reference)
+    elif grid.reference is not None:
+        if rows[grid.reference]["status"] == "ok":
+            ref_dir, label = out_dir / RUNS_DIR / grid.reference, f"task {grid.reference}"
+        else:
+            notes.append(f"reference task {grid.reference!r} failed: no errors and no Pareto plot")
+    if ref_dir is not None:
+        result = add_errors(result, ref_dir, out_dir)
+        write_table(table, result, grid.keys, errors=True)
+        plot = plot_pareto(result, out_dir / PLOT_NAME,
+                           f"sweep {grid.name} ({grid.base.name}): errors against {label}")
+        if plot is None:
+            notes.append("no task has a positive error against the reference: no Pareto plot")
+    return SweepResult(rows=result, table=table, plot=plot, reference=ref_dir,
+                       failed=[r["task"] for r in result if r["status"] != "ok"], reused=reused, notes=notes,
+                       wall_s=time.perf_counter() - start)
+
+
+def _run_on_dask(specs: list[dict], scheduler: str | None, workers: int):
+    """Yield ``(spec, row)`` for each task of ``specs`` as it finishes on Dask.
+
+    A task whose worker was lost (killed, out of memory) yields a failed row.
+    """
+    from dask.distributed import as_completed
+
+    with _client(scheduler, workers) as client:
+        token = uuid.uuid4().hex[:8]  # keys unique on a shared scheduler
+        futures = {client.submit(run_task, spec, key=f"jaxanm-sweep-{token}-{spec['id']}", pure=False): spec
+                   for spec in specs}
+        for future in as_completed(futures):
+            spec = futures[future]
+            try:
+                row = future.result()
+            except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: that task failed, the others go on
+                row = failed_row(spec, exc)
+            yield spec, row
+
+
+@contextmanager
+def _client(scheduler: str | None, workers: int):
+    """A Dask client of the scheduler at ``scheduler``, or of a new local cluster (closed on exit)."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            client = Client(scheduler)  # waits up to Dask's distributed.comm.timeouts.connect (30 s)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise InputError(f"cannot reach the Dask scheduler at {scheduler!r} ({exc}); start one with "
+                             "`dask scheduler` and its workers with `dask worker ADDRESS`, or leave the "
+                             "scheduler out for a local cluster") from exc
+        with client:
+            yield client
+        return
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        yield client
