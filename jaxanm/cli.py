@@ -6,6 +6,8 @@
                [--set KEY=VALUE ...] [--out DIR] [--checkpoint-every N] [--no-progress]
                [--no-compile-cache]
     jaxanm run --resume DIR [--checkpoint-every N] [--no-progress]
+    jaxanm sweep GRID.toml [--out DIR] [--scheduler ADDRESS] [--workers N] [--reference DIR]
+                 [--no-progress] [--no-compile-cache]
     jaxanm scenes
 
 ``SCENE`` is a shipped scene name or a TOML path (default ``fsw_paper``).  ``--set`` overrides
@@ -23,12 +25,22 @@ uninterrupted run (bit-identical fields on the same machine).  Options given wit
 must agree with the stored scene (else exit 2 naming the differing fields).  An interrupted or
 failed run also writes the results of the steps done so far into DIR.
 
+``jaxanm sweep`` runs every task of a grid file (a base scene, scene overrides and solver
+settings, :mod:`jaxanm.sweep.grid`) as an independent run on Dask: a local cluster of
+``--workers`` processes (default 2), or the workers of the scheduler at ``--scheduler``.  Each
+task writes its own ``jaxanm run --out`` directory under ``DIR/runs/``; ``DIR/results.csv``
+(default ``DIR`` = ``results/sweep-<grid name>``) gets one row per task as it finishes; tasks
+already finished in DIR are not run again.  With a reference (the grid's ``reference`` task,
+or ``--reference`` a run directory) the rows get errors against it and ``DIR/pareto.png`` is
+drawn (:mod:`jaxanm.sweep`).  Exit status 1 when a task failed (the others still run).
+
 Compiled XLA code is kept on disk for later runs (:mod:`jaxanm.compile_cache`) unless
 ``--no-compile-cache`` or ``JAXANM_COMPILE_CACHE=0``.
 
 Exit status: 0 on success, 2 on bad input (unknown scene, malformed ``--set``, invalid value,
-unusable checkpoint; one ``jaxanm: error: ...`` line on stderr, no traceback), 1 when the
-solver fails or the results cannot be written, 130 when interrupted.
+unusable checkpoint, bad grid file, unusable ``--reference``, unreachable scheduler; one
+``jaxanm: error: ...`` line on stderr, no traceback), 1 when the solver fails, the results
+cannot be written or a sweep task failed, 130 when interrupted.
 """
 
 from __future__ import annotations
@@ -63,7 +75,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``jaxanm`` argument parser (sub-commands ``run`` and ``scenes``)."""
+    """The ``jaxanm`` argument parser (sub-commands ``run``, ``sweep`` and ``scenes``)."""
     from jaxanm import __version__
 
     parser = _Parser(prog=PROG, description="High-order implicit (ANM) friction-stir-welding "
@@ -97,6 +109,26 @@ def build_parser() -> argparse.ArgumentParser:
                      help="do not keep compiled XLA code on disk for later runs (default: kept in "
                      "$JAXANM_COMPILE_CACHE_DIR or ~/.cache/jaxanm; JAXANM_COMPILE_CACHE=0 also turns it off)")
     run.set_defaults(func=_cmd_run)
+
+    sweep = sub.add_parser("sweep", help="run a grid of scene overrides x solver settings on Dask",
+                           description="Run every task of a grid file as an independent run on Dask; write "
+                           "one output directory per task, a results table (CSV) and, with a reference, "
+                           "the errors and a Pareto plot (error against wall time).")
+    sweep.add_argument("grid", type=Path, metavar="GRID.toml", help="grid file (see jaxanm.sweep.grid)")
+    sweep.add_argument("--out", type=Path, metavar="DIR",
+                       help="sweep directory (default results/sweep-<grid name>)")
+    sweep.add_argument("--scheduler", metavar="ADDRESS",
+                       help="address of a running Dask scheduler, e.g. tcp://host:8786 (default: a local "
+                       "cluster); its workers must see DIR at the same path")
+    sweep.add_argument("--workers", type=_positive_int, metavar="N",
+                       help="worker processes of the local cluster, one thread each (default 2)")
+    sweep.add_argument("--reference", type=Path, metavar="DIR",
+                       help="output directory of the run the errors are measured against (default: the "
+                       "grid's reference task)")
+    sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sweep.add_argument("--no-compile-cache", action="store_true",
+                       help="the workers do not keep compiled XLA code on disk (as jaxanm run --no-compile-cache)")
+    sweep.set_defaults(func=_cmd_sweep)
 
     scenes = sub.add_parser("scenes", help="list the shipped scenes",
                             description="List the shipped scenes with their effects and end time.")
@@ -323,6 +355,38 @@ def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> st
     if checkpointing:
         parts.append(f"resume with: jaxanm run --resume {out_dir}")
     return "; ".join(parts)
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    """``jaxanm sweep``: read and check the grid, run its tasks on Dask, report the table and plot."""
+    from jaxanm.sweep import GridError, read_grid, run_sweep
+
+    if args.scheduler is not None and args.workers is not None:
+        raise UsageError("--workers sets the size of the local cluster; with --scheduler the scheduler's "
+                         "workers run the tasks: drop one of the two")
+    try:
+        grid = read_grid(args.grid)
+    except GridError as exc:
+        raise UsageError(str(exc)) from exc
+    cache = False if args.no_compile_cache else None
+    try:
+        result = run_sweep(grid, args.out, scheduler=args.scheduler, workers=args.workers or 2,
+                           progress=not args.no_progress, reference=args.reference, compile_cache=cache)
+    except KeyboardInterrupt:
+        return _error("interrupted; the rows of the finished tasks are in the table, and a rerun of the "
+                      "same command runs only the others", 130)
+    n = len(result.rows)
+    print(f"sweep {grid.name}: {n} tasks ({n - result.reused} run, {result.reused} reused, "
+          f"{len(result.failed)} failed) in {result.wall_s:.1f} s")
+    print(f"results table: {result.table}")
+    if result.reference is not None:
+        print(f"errors against {result.reference}" + (f"; Pareto plot: {result.plot}" if result.plot else ""))
+    for note in result.notes:
+        print(f"note: {note}")
+    if result.failed:
+        return _error(f"{len(result.failed)} of {n} tasks failed ({', '.join(result.failed)}); their messages "
+                      f"are in {result.table}, and a rerun runs them again", 1)
+    return 0
 
 
 def _cmd_scenes(args: argparse.Namespace) -> int:

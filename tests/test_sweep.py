@@ -1,5 +1,5 @@
 """``jaxanm sweep``: the grid reader (units), one 2 x 2 sweep on a local Dask cluster of 2 workers,
-its rerun (nothing run again), the task's failure path and bad input.
+its rerun (nothing run again), the task's failure path and the command's errors.
 
 The sweep's scene is couette_small at twice its spacing (4 rings, one stationary step):
 nonlinear, so Newton and modified Newton at two tolerances give four different runs, and a few
@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from jaxanm import cli
 from jaxanm.errors import InputError
 from jaxanm.fsw.scene import SCENES_DIR, SolverSpec
 from jaxanm.sweep import GridError, grid_from_dict, read_grid, run_sweep
@@ -268,7 +269,44 @@ def test_a_run_directory_is_finished_only_for_its_own_scene(sweep, tmp_path):
     assert finished_row(spec) is None
 
 
-# --------------------------------------------------------------------------- bad input
+def test_cli_sweep_reports_the_table_and_plot(sweep, tmp_path, capsys):
+    path, out, _ = sweep
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    assert cli.main(["sweep", str(path), "--out", str(copy), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "sweep tiny: 4 tasks (0 run, 4 reused, 0 failed)" in printed
+    assert f"results table: {copy / 'results.csv'}" in printed and f"Pareto plot: {copy / 'pareto.png'}" in printed
+
+
+# --------------------------------------------------------------------------- command-line errors
+
+
+def _one_error_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("jaxanm: error: "), err
+    return lines[0]
+
+
+def test_cli_rejects_a_bad_grid_before_any_computation(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('scene = "couette_small"\n[[solvers]]\nkind = "newton"\norder = [5, 7]\n')
+    out = tmp_path / "out"
+    assert cli.main(["sweep", str(bad), "--out", str(out)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "bad.toml': [[solvers]] #1: 'order': it does not apply to kind = 'newton'" in line
+    assert "put other kinds in their own [[solvers]] entry" in line and not out.exists()
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--scheduler", "tcp://127.0.0.1:8786", "--workers", "3"], "--workers sets the size of the local cluster"),
+    (["--workers", "0"], "expected an integer >= 1, got 0"),
+])
+def test_cli_rejects_conflicting_options(argv, expected, tmp_path, capsys):
+    good = tmp_path / "good.toml"
+    good.write_text('scene = "couette_small"\n')
+    assert cli.main(["sweep", str(good), "--out", str(tmp_path / "out"), *argv]) == 2
+    assert expected in _one_error_line(capsys.readouterr().err)
 
 
 def test_unusable_reference_and_unreachable_scheduler_are_input_errors(tmp_path):
