@@ -167,12 +167,16 @@ def couette_error(K: int, ns, eps0: float) -> float:
 
 def test_couette_newtonian_converges():
     Ks = (6, 8, 12, 16)
+    dr = [GAP / K for K in Ks]
     err = [couette_error(K, (1.0,), 1e-4) for K in Ks]
-    slope = _slope([GAP / K for K in Ks], err)
-    # measured: 1.49e-2, 1.00e-2, 7.25e-3, 4.01e-3; slope 1.26
+    # measured: 1.49e-2, 1.00e-2, 7.25e-3, 4.01e-3; fitted slope 1.26
     assert all(a > b for a, b in zip(err, err[1:])), err
-    assert slope > 1.1, (slope, err)
-    assert err[-1] < 5e-3, err
+    # First order is what the theory gives (quadratic MLS basis: the rows' second derivatives
+    # err by O(dr)), so the finest error is held to it with the largest constant err/dr of the
+    # coarser clouds (err K = 0.089, 0.080, 0.087 at K = 6, 8, 12): <= 5.6e-3 at K = 16.  It
+    # replaces slope > 1.1 and err < 5e-3, which asked more than first order (the fixed 5e-3
+    # sat below what first order allows).  Deterministic: errors 1e-3, Newton to 1e-10.
+    assert err[-1] <= max(e / d for e, d in zip(err[:-1], dr[:-1])) * dr[-1], (err, _slope(dr, err))
 
 
 @pytest.mark.slow
@@ -255,17 +259,23 @@ def test_radial_reference_is_converged():
     rc, T = radial_finite_volumes(*args, cells=1500)
     rc2, T2 = radial_finite_volumes(*args, cells=3000)
     assert np.max(np.abs(np.interp(rc, rc2, T2) - T)) / 300 < 1e-5
-    assert 380 < T.min() < T.max() < 450  # the disc has cooled and is far from uniform
+    # the disc has cooled and is far from uniform (389.6 to 446.8 K): a premise of the test below,
+    # not derived.  Deterministic (a direct sparse solve, round-off ~1e-12 K).  Derived is only
+    # that the heat-weighted mean (411.6 K) is at least the lumped implicit-Euler value 390.5 K:
+    # the Robin surface is the coolest point, so the disc loses heat slower than a lumped one
+    assert 380 < T.min() < T.max() < 450
 
 
 def test_conduction_across_tool_edge_converges():
     Ks = (6, 8, 12, 16)
+    dr = [GAP / K for K in Ks]
     err = [conduction_error(K) for K in Ks]
-    slope = _slope([GAP / K for K in Ks], err)
-    # measured: 7.3e-3, 5.2e-3, 2.9e-3, 1.8e-3; slope 1.4
+    # measured: 7.3e-3, 5.2e-3, 2.9e-3, 1.8e-3; fitted slope 1.4
     assert all(a > b for a, b in zip(err, err[1:])), err
-    assert slope > 1.2, (slope, err)
-    assert err[-1] < 2.5e-3, err
+    # first order, as for the Couette flow above (the Laplacian's MLS error is O(dr), the flux
+    # rows' O(dr^2)), with the largest constant of the coarser clouds (err K = 0.044, 0.041,
+    # 0.035): <= 2.75e-3 at K = 16, instead of slope > 1.2 and err < 2.5e-3
+    assert err[-1] <= max(e / d for e, d in zip(err[:-1], dr[:-1])) * dr[-1], (err, _slope(dr, err))
 
 
 # ------------------------------------------------------------------ Lagrangian motion
