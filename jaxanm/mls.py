@@ -546,7 +546,8 @@ def _stencils(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None
             f"h = 3 dr)."
         )
     pad = np.arange(len(centers)) if same_cloud else idx[:, 0]
-    index = np.where(mask, idx, pad[:, None]).astype(np.int32)
+    node = np.where(mask, idx, pad[:, None])  # numpy's own index type: gathers 2x faster than int32
+    index = node.astype(np.int32)
     if same_cloud:
         dup = np.flatnonzero(mask[:, 1] & (dist[:, 1] == 0.0))
         if dup.size:
@@ -557,8 +558,8 @@ def _stencils(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None
             )
 
     # scaled local coordinates, one axis at a time (a 1-D take is faster than rows of 2)
-    x = (nodes[:, 0][index] - centers[:, :1]) / h[:, None]
-    y = (nodes[:, 1][index] - centers[:, 1:]) / h[:, None]
+    x = (nodes[:, 0][node] - centers[:, :1]) / h[:, None]
+    y = (nodes[:, 1][node] - centers[:, 1:]) / h[:, None]
     # The support r <= 1 in the scaled coordinates is decided here, in numpy (two roundings,
     # no fused multiply-add): inside the jitted kernel XLA may contract x*x + y*y into an FMA,
     # and for nodes at h to round-off (the polar cloud's rings) the two roundings disagree.
