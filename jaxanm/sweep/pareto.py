@@ -13,6 +13,7 @@ from pathlib import Path
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
 from jaxanm.fsw.output import atomic_path
 
@@ -54,6 +55,10 @@ def plot_pareto(rows: list[dict], path, title: str) -> Path | None:
     ax.plot(*zip(*front), color="0.5", linewidth=1, zorder=0, label="front")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    for axis in (ax.xaxis, ax.yaxis):  # labels at 1, 2, 5 x 10^k: some within any span of a decade
+        axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(FormatStrFormatter("%g"))
+        axis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("wall time of the time loop (s)")
     ax.set_ylabel("relative error, max of V and T - T0 over the saved fields")
     ax.set_title(title, fontsize=9)
