@@ -150,6 +150,16 @@ def test_grid_files_name_themselves_in_errors(tmp_path):
         read_grid(broken)
 
 
+def test_committed_grids_read():
+    root = Path(__file__).resolve().parents[1] / "benchmarks" / "grids"
+    table1 = read_grid(root / "table1.toml")
+    assert [(t.scene.solver.kind, t.scene.solver.adaptive, t.scene.solver.order) for t in table1.tasks] == [
+        ("anm", False, p) for p in (5, 7, 10, 15, 20)]
+    assert table1.base.name == "fsw_paper" and table1.tasks[0].scene.time.t_end == 0.7
+    demo = read_grid(root / "couette_demo.toml")
+    assert len(demo.tasks) == 4 and demo.reference in {t.id for t in demo.tasks}
+
+
 # --------------------------------------------------------------------------- table and plot helpers
 
 
