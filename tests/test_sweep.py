@@ -266,6 +266,24 @@ def test_rerun_reuses_every_finished_task_without_a_cluster(sweep, monkeypatch):
     assert all(r["reused"] is True for r in again.rows)
 
 
+def test_an_unfinished_task_runs_again_alone_on_a_given_scheduler(sweep, tmp_path):
+    """One task's row file removed (as after an interruption): a rerun on the scheduler of a
+    cluster made here (in this process: no network) runs that task and re-reads the others."""
+    from dask.distributed import LocalCluster
+
+    path, out, first = sweep
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    (copy / "runs" / TINY_IDS[2] / ROW_FILE).unlink()
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        again = run_sweep(read_grid(path), copy, scheduler=cluster.scheduler_address, progress=False,
+                          compile_cache=False)
+    assert again.reused == 3 and [r["reused"] for r in again.rows] == [True, True, False, True]
+    rerun = again.rows[2]
+    assert rerun["status"] == "ok" and rerun["task"] == TINY_IDS[2] and (copy / rerun["dir"] / ROW_FILE).is_file()
+    assert rerun["time_steps"] == first.rows[2]["time_steps"] and rerun["rel_err"] > 0
+
+
 def test_a_run_directory_is_finished_only_for_its_own_scene(sweep, tmp_path):
     path, out, _ = sweep
     g = read_grid(path)
