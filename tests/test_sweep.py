@@ -249,6 +249,20 @@ def test_errors_against_the_reference_task_and_the_pareto_plot(sweep):
     assert result.plot == out / "pareto.png" and result.plot.read_bytes()[:4] == b"\x89PNG"
 
 
+def test_without_a_reference_the_table_has_no_errors_and_an_old_plot_goes(sweep, tmp_path):
+    path, out, _ = sweep
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    plain = tmp_path / "plain.toml"
+    plain.write_text(TINY_GRID.replace('reference = "newton-tol=1e-08"', "").replace(
+        '"tiny_couette.toml"', f'"{path.parent / "tiny_couette.toml"}"'))
+    again = run_sweep(read_grid(plain), copy, progress=False)
+    assert again.reused == 4 and again.reference is None and again.plot is None
+    assert not (copy / "pareto.png").exists()
+    with open(copy / "results.csv", newline="") as f:
+        assert next(csv.reader(f)) == columns(("geometry.dr", "solver.kind", "solver.tol"))
+
+
 def test_rerun_reuses_every_finished_task_without_a_cluster(sweep, monkeypatch):
     path, out, first = sweep
 

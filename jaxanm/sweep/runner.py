@@ -140,6 +140,8 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
                            f"sweep {grid.name} ({grid.base.name}): errors against {label}")
         if plot is None:
             notes.append("no task has a positive error against the reference: no Pareto plot")
+    if plot is None:  # a plot left by an earlier sweep in this directory would describe other rows
+        (out_dir / PLOT_NAME).unlink(missing_ok=True)
     return SweepResult(rows=result, table=table, plot=plot, reference=ref_dir,
                        failed=[r["task"] for r in result if r["status"] != "ok"], reused=reused, notes=notes,
                        wall_s=time.perf_counter() - start)
