@@ -193,13 +193,14 @@ class _Recorder:
         v = self._values_at(x, particles, self.tracer_neighbours)
         return _move(particles, self.model.cloud.kind, _velocity(v), self.scene.tool.omega, dt)
 
-    def _marker_values(self, node_values: dict, at_markers: dict) -> dict:
+    def _marker_values(self, node_values: dict, at_free: dict) -> dict:
         """Fields at the material points: the nodes' own values where they coincide (tool and
-        tool-edge points, never re-seeded), the MLS values ``at_markers`` elsewhere."""
+        tool-edge points, never re-seeded), elsewhere the MLS values ``at_free`` at the other
+        (free) material points, in their order."""
         free = ~_rigid(self.model.cloud.kind)
         out = {k: v.copy() for k, v in node_values.items()}
         for k in "uvT":
-            out[k][free] = at_markers[k][free]
+            out[k][free] = at_free[k]
         return out
 
     def _sheared(self, index: np.ndarray | None = None) -> bool:
@@ -266,9 +267,11 @@ class _Recorder:
         if self.markers is None:
             material, material_values = _move(self.points, kind, _velocity(full), omega, dt), full
         else:
-            at = self._values_at(x, self.markers, self.marker_neighbours)
+            # MLS values at the free material points only: the rigid ones (tool and both sides
+            # of its edge) take the nodes' values and turn with the tool
+            at = self._values_at(x, self.markers[~_rigid(kind)], self.marker_neighbours)
             material_values = self._marker_values(full, at)
-            material = self.markers = _move(self.markers, kind, _velocity(at), omega, dt)
+            material = self.markers = _move(self.markers, kind, _velocity(material_values), omega, dt)
         rezoned = self._sheared(np.asarray(params["st"].index))
         if rezoned:
             if self.markers is None:  # the material points go on from where the nodes were
