@@ -7,11 +7,17 @@ This script
 1. builds ``fsw_paper`` and runs ``--warm`` Newton steps with the run's own recorder as the
    ``after_step`` hook (a developed flow: the points move as in a run);
 2. times each part of one host step separately on that state, and the whole hook, as medians
-   over ``--repeats`` calls (each on a copy of the recorder, so every call is the same step);
+   of wall and process CPU time over ``--repeats`` calls (each on a copy of the recorder, so
+   every call is the same step);
 3. prints a table and writes ``docs/profile_host_step.json`` (one entry per ``--label``, earlier
    labels kept) and ``docs/profile_host_step.md`` (every label side by side).
 
     python benchmarks/profile_host_step.py --label before
+
+Another checkout's code is profiled by putting it first on the path (the script's
+compatibility checks let it time the code of before issue 14 too):
+
+    PYTHONPATH=/path/to/old/checkout python benchmarks/profile_host_step.py --label old --commit abc1234
 """
 
 from __future__ import annotations
@@ -60,19 +66,22 @@ def warm_state(steps: int = 3, scene_name: str = "fsw_paper"):
     return scene, model, last["recorder"], last["t"], last["x"], last["params"]
 
 
-def median_ms(fn, repeats: int, setup=None) -> float:
-    """Median wall time of ``fn(setup())`` in ms over ``repeats`` calls (setup not timed)."""
-    times = []
+def median_ms(fn, repeats: int, setup=None) -> tuple:
+    """Median wall time and median process CPU time (all threads) of ``fn(setup())`` in ms over
+    ``repeats`` calls (setup not timed).  On a machine shared with other processes the CPU time
+    follows the load much less than the wall time, which counts the waits for a core."""
+    wall, cpu = [], []
     for _ in range(repeats):
         arg = setup() if setup is not None else None
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         fn(arg)
-        times.append(time.perf_counter() - t)
-    return 1e3 * float(np.median(times))
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return 1e3 * float(np.median(wall)), 1e3 * float(np.median(cpu))
 
 
 def profile(recorder, t, x, params, repeats: int) -> dict:
-    """Median ms per part of one host step, and of the whole ``after_step`` hook."""
+    """Median ``(wall, CPU)`` ms per part of one host step, and of the whole ``after_step`` hook."""
     model, scene = recorder.model, recorder.scene
     g = scene.geometry
     kind, omega = model.cloud.kind, scene.tool.omega
@@ -111,13 +120,19 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
                                                                  repeats, fresh)
     index = np.asarray(new_st.index)
     mask = np.asarray(new_st.phi) != 0
-    local = (apart[index] - apart[:, None, :]) / h[:, None, None]
-    parts["  MLS kernel (_run_kernel)"] = median_ms(lambda _: mls._run_kernel(local, mask, h, float(g.c), int(g.q)),
-                                                    repeats)
+    x_loc = (apart[:, 0][index] - apart[:, :1]) / h[:, None]
+    y_loc = (apart[:, 1][index] - apart[:, 1:]) / h[:, None]
+    # the kernel took (n, m, 2) local coordinates before issue 14's single-call kernel, x and y after
+    kernel_args = ((x_loc, y_loc) if "y" in inspect.signature(mls._run_kernel).parameters
+                   else (np.stack([x_loc, y_loc], axis=-1),))
+    parts["  MLS kernel (_run_kernel)"] = median_ms(
+        lambda _: mls._run_kernel(*kernel_args, mask, h, float(g.c), int(g.q)), repeats)
     parts["params"] = median_ms(lambda _: model.params(moved, new_st), repeats)
     parts["refit (fit_state, new splu)"] = median_ms(lambda _: model.fit_state(values, new_st), repeats)
     if hasattr(recorder, "refit"):  # preconditioned by the previous step's factorisation, as the hook does
-        parts["refit (fit_state, iterative)"] = median_ms(lambda r: model.fit_state(values, new_st, r.refit),
+        # (and from the state just solved, where fit_state takes a guess)
+        guess = {"guess": x} if "guess" in inspect.signature(model.fit_state).parameters else {}
+        parts["refit (fit_state, iterative)"] = median_ms(lambda r: model.fit_state(values, new_st, r.refit, **guess),
                                                           repeats, fresh)
     parts["  value matrix"] = median_ms(lambda _: mls.value_matrix(new_st), repeats)
     vm = mls.value_matrix(new_st)
@@ -129,18 +144,88 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
             return r._values_at(x, targets, r.marker_neighbours)
         return r._values_at(x, targets)
 
-    def primed():  # markers' candidate lists made on the previous step, as in a run
+    def primed():  # markers' candidate lists made for these targets (a run remakes them every ~50 steps)
         r = fresh()
-        markers(r, recorder.points)
+        markers(r, moved)
         return r
 
     parts["values at the markers (after a rezoning)"] = median_ms(lambda r: markers(r, moved), repeats, primed)
     parts["  the same with derivative stencils"] = median_ms(
         lambda _: model.values(x, sim.evaluate_stencils(recorder.points, model.cloud.n_tool, g, moved)), repeats)
+
+    def rezoned():  # after a rezoning: material points (here where the nodes are) with primed lists
+        first = fresh()
+        first.markers = recorder.points.copy()
+        first.after_step(t, x, params)
+        r = fresh()
+        r.markers, r.marker_neighbours = recorder.points.copy(), first.marker_neighbours
+        return r
+
+    parts["after_step after a rezoning (with markers)"] = median_ms(lambda r: r.after_step(t, x, params), repeats,
+                                                                     rezoned)
     return parts
 
 
 CHANGES = """\
+## Second round (labels 'before blocked kernel' and 'blocked kernel, refit from x')
+
+Measured on a 2-core AMD EPYC (AVX-512), about 2.5x faster per step than the machine of the
+first four labels, shared with other runs (load about 4; single runs at load 5-6 scattered by
++-20 %): compare the last two labels with each other only, each the median of three runs
+alternated with the other's.  The whole hook 8.5 -> 5.6 ms, the hook after a rezoning (with
+the material points) 12.8 -> 7.6 ms, the stencil rebuild 6.0 -> 3.9 ms.  The issue's 5 ms
+is not reached at this load (5.6 ms); the code of 871164a took 8.0 ms at load 2.8 against 8.5
+here, so an idle machine may bring the hook to about 5 ms (not measured: none was idle).
+
+- **MLS kernel** (`mls._run_kernel`): one jitted call over all points (up to 1024 per call,
+  padded to a multiple of 128) instead of 7 calls of 128 -- a call's ~200 XLA fusions each
+  have a start-up cost, paid once instead of 7 times (2.3 against 3.3 ms at load 6); inside
+  the call a `lax.map` over blocks of 64 points keeps each fusion's arrays in cache (CPU time
+  1.73 against 2.10 ms, value-only kernel 0.70 against 0.80); `Q = Q1 R2^-1` applied through
+  the 6 x 6 `R2^-1` instead of formed (21 products of (n, m) arrays fewer); the rcond bound
+  det / trace^6 from the kernel's own Cholesky factors instead of moment matrices out of the
+  kernel and numpy LU determinants (eigenvalues of moments recomputed in numpy for the rows
+  the bound does not decide); the all-finite flag as one sum of `a * 0` (six boolean
+  reductions had been the kernel's most expensive fusion); the weights stay jax arrays,
+  sliced to n on the device, instead of a round trip through numpy and a copy back.  Results
+  change by round-off: 2e-16 (phi) to 2e-15 (second derivatives) of sum |w|; tests/test_mls.py
+  (50-digit reference, 36 eps / sqrt(rcond) bounds) unchanged and passing.  Cost: compile
+  time, 4.1 s for the derivative kernel and 3.4 s for the value-only one (3.2 and 1.7 s
+  before), once per shape (multiples of 128 up to 1024) -- `jaxanm run` keeps them in its
+  compile cache.
+- **refit** (`model.Refit`): the iterations start from the state just solved (off by one
+  step's change of the value matrix, and one solve less than `LU0^-1 values`), and refactorise
+  after more than 7 iterations instead of 6: replayed on 60 steps with rezonings, 6.2 solves a
+  step and a factorisation every 7.5 steps against 6.9 and every 4, each result within 3e-15
+  of the direct solve (the same stopping test).  In 0.02 s of fsw_paper: 26 factorisations of
+  the value matrix instead of 50.
+- **values** (`Model.values`) and the refit's matrix: one CSR product straight from the
+  stencil arrays, 0.08 against 0.17 ms.
+- **markers** (after a rezoning): MLS values at the free material points only (792 of 881):
+  the rigid ones take the nodes' values anyway.  Their candidate lists are no longer remade
+  when a rigid edge marker, at r = R1 to round-off, flips between the tool's and the plate's
+  side.  This profile now primes the markers' lists on the same targets (a run remakes them
+  about every 50 steps); the first four labels' rows remade them in every timed call, for that
+  flip, which overstated them.
+
+Results unchanged: fsw_paper to 0.02 s, this round's code against 871164a, largest
+differences: fields at the saved times u, v 1.8e-15 of max |V|, T 7.2e-14 of its rise; probes
+(every step) T 1.4e-12 of its rise (8e-13 K), u, v 1.8e-13 of the probe's max |V|; sections
+3e-13; with `--set geometry.rezone=0.999` (25 rezonings) u, v 1.8e-15, T 7.7e-14 of the rise,
+probes T 2.5e-12 (1.0e-12 K).  Same steps, series orders, sub-steps and factorisations.
+
+What is left (CPU time inside the hook, load 5): the MLS kernel about 2 ms (1.5 ms when timed
+alone, caches warm: per block of 64 points ~75 reductions over the stencils, ~30 elementwise
+passes and ~90 small fusions of the 6 x 6 algebra; traced before the blocks, the reductions
+took 0.9 ms of a 1.8 ms call, 10-15 us each over (896, 32)), the refit
+1.25 ms (6 SuperLU solves of 3 right-hand sides, 0.14-0.22 ms each, and 6 CSR products,
+plus a factorisation every 7.5 steps, 2.5 ms), the neighbour search 0.7-0.8 ms (a cKDTree of
+all points every step for the ~23 rows with a node at h to round-off), the rest about 1 ms
+(local coordinates, checks, the index array to jax, values, shear test, motion).  Measured and
+left: the basis columns stacked into (6, n, m) arrays for fewer, larger reductions (1.3x
+slower for the Gram sums, 7x for the products with Q1), reductions as products with a ones
+vector (no gain), the transposed (m, n) layout (slower in every run, up to 2.4x).
+
 ## What changed (issue 14, item 1), and what each part gained
 
 - **values** (`Model.values`): numpy gathers of the stencils instead of a jnp dispatch per field.
@@ -191,14 +276,24 @@ in the commit messages): u, v 3e-15, T 9e-14 of its rise, probes 3e-12; with
 """
 
 
-def write(label: str, parts: dict, meta: dict) -> None:
-    """Merge this label into docs/profile_host_step.json and rewrite the markdown table."""
+def _table(data: dict, labels: list, key: str) -> list:
+    """Markdown rows of the ``key`` times ("parts_ms" or "parts_cpu_ms") of ``labels``."""
+    names = list(dict.fromkeys(k for lab in labels[::-1] for k in data[lab][key]))  # the latest's order
+    lines = ["| part | " + " | ".join(labels) + " |", "| --- | " + " | ".join("---:" for _ in labels) + " |"]
+    for name in names:
+        cells = [data[lab][key].get(name) for lab in labels]
+        lines.append(f"| {name.replace('  ', '&nbsp;&nbsp;')} | "
+                     + " | ".join("" if c is None else f"{c:.2f}" for c in cells) + " |")
+    return lines
+
+
+def write(label: str, parts: dict, cpu: dict, meta: dict) -> None:
+    """Merge this label into docs/profile_host_step.json and rewrite the markdown tables."""
     path = DOCS / "profile_host_step.json"
     data = json.loads(path.read_text()) if path.is_file() else {}
-    data[label] = {"parts_ms": parts, **meta}
+    data[label] = {"parts_ms": parts, "parts_cpu_ms": cpu, **meta}
     path.write_text(json.dumps(data, indent=1) + "\n")
     labels = list(data)
-    names = list(dict.fromkeys(k for lab in labels[::-1] for k in data[lab]["parts_ms"]))  # the latest's order
     lines = ["# Host work of one Lagrangian fsw_paper step",
              "",
              "Made by `python benchmarks/profile_host_step.py --label LABEL` (issue 14, item 1): "
@@ -207,12 +302,13 @@ def write(label: str, parts: dict, meta: dict) -> None:
              "an empty cell a path that code did not have.  Load average (1 min) when measured is "
              "given per label; labels measured back to back compare, absolute times follow the load.",
              "",
-             "| part | " + " | ".join(labels) + " |",
-             "| --- | " + " | ".join("---:" for _ in labels) + " |"]
-    for name in names:
-        cells = [data[lab]["parts_ms"].get(name) for lab in labels]
-        lines.append(f"| {name.replace('  ', '&nbsp;&nbsp;')} | "
-                     + " | ".join("" if c is None else f"{c:.2f}" for c in cells) + " |")
+             "Wall time:",
+             ""] + _table(data, labels, "parts_ms")
+    with_cpu = [lab for lab in labels if "parts_cpu_ms" in data[lab]]
+    if with_cpu:
+        lines += ["", "Process CPU time (all threads; on a shared machine it follows the load much less "
+                  "than the wall time, which counts the waits for a core):", ""]
+        lines += _table(data, with_cpu, "parts_cpu_ms")
     lines += ["", "| label | date | load average | repeats | commit |", "| --- | --- | --- | ---: | --- |"]
     for lab in labels:
         d = data[lab]
@@ -224,29 +320,34 @@ def write(label: str, parts: dict, meta: dict) -> None:
 
 
 def main() -> None:
-    """Command line: ``--label``, ``--repeats``, ``--warm``, ``--note``, ``--no-write``."""
+    """Command line: ``--label``, ``--repeats``, ``--warm``, ``--note``, ``--no-write``, ``--commit``."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--label", default="current")
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--warm", type=int, default=3, help="Newton steps before the profiled one")
     ap.add_argument("--note", default="")
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--commit", default="", help="commit of the code measured (default: this checkout's HEAD; "
+                    "give it when PYTHONPATH points to another checkout)")
     args = ap.parse_args()
     with jaxanm.float64():
         _, _, recorder, t, x, params = warm_state(args.warm)
         for _ in range(3):  # compile and warm every code path once
             copy.deepcopy(recorder).after_step(t, x, params)
         load_before = os.getloadavg()
-        parts = profile(recorder, t, x, params, args.repeats)
+        timed = profile(recorder, t, x, params, args.repeats)
         load_after = os.getloadavg()
+    parts = {name: wall for name, (wall, _) in timed.items()}
+    cpu = {name: c for name, (_, c) in timed.items()}
     width = max(map(len, parts))
-    for name, ms in parts.items():
-        print(f"{name:<{width}}  {ms:8.3f} ms")
+    print(f"{'':<{width}}  {'wall':>8}     {'CPU':>8}")
+    for name in parts:
+        print(f"{name:<{width}}  {parts[name]:8.3f} ms  {cpu[name]:8.3f} ms")
     load = f"{load_before[0]:.2f} -> {load_after[0]:.2f}"
     print(f"load average (1 min): {load}")
     if not args.no_write:
-        commit = os.popen("git -C " + str(DOCS.parent) + " rev-parse --short HEAD").read().strip()
-        write(args.label, parts, {"date": datetime.date.today().isoformat(), "loadavg": load,
+        commit = args.commit or os.popen("git -C " + str(DOCS.parent) + " rev-parse --short HEAD").read().strip()
+        write(args.label, parts, cpu, {"date": datetime.date.today().isoformat(), "loadavg": load,
                                   "repeats": args.repeats, "commit": commit, "note": args.note})
 
 
