@@ -57,8 +57,9 @@ class StepController:
         Local error per step below ``atol * scale + rtol * |y|`` in the weighted RMS norm
         (module docstring).
     dt_min, dt_max : float
-        Bounds of the step size; a step that fails its error test at ``dt_min`` is accepted
-        (counted in ``stats.rejected_steps`` only when it is retried).
+        Bounds of the step size.  A step of ``dt_min`` that fails its error test is accepted as
+        it is; with ``dt_min = 0`` a step still refused below 1e-12 of the span raises
+        :class:`jaxanm.StepFailure` (a discontinuity, or an estimate at round-off).
     safety, shrink, grow : float
         The controller's factor ``clip(safety * err^(-1/2), shrink, grow)``.
     error_map : callable ``(x, params) -> array``, optional
