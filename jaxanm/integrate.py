@@ -301,7 +301,7 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     def controlled_step(k):
         """Step k with a controller: sizes by the local error test; returns ``(t_new, x_new,
         r_norm)`` and leaves the next proposal in ``run.h_next``."""
-        h = run.h_next if run.h_next is not None else float(dt)
+        h = run.h_next if run.h_next is not None else float(dt)  # the proposed size
         y_now = controller.measured(run.x, run.params) if run.history is not None else None
         failures = 0
         while True:
@@ -312,34 +312,35 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
                 if t_new >= end - _MIN_STEP * (t1 - t0):
                     t_new = end
                     break
-            h = t_new - run.t
+            size = t_new - run.t
             try:
-                x_new, r_norm = solve_step(run.x, run.t, t_new - run.t, k)
+                x_new, r_norm = solve_step(run.x, run.t, size, k)
             except StepFailure:
                 if failures >= max_dt_halvings:
                     raise
                 failures += 1
                 stats.dt_halvings += 1
-                h = controller.clip(h / 4)
+                h = controller.clip(size / 4)
                 continue
             if y_now is None:  # no earlier step to estimate with: accepted as proposed
                 run.h_next = controller.clip(h)
                 break
             y_before, h_prev = run.history
-            err = controller.error(controller.measured(x_new, run.params), y_now, y_before, t_new - run.t,
-                                   h_prev, scale)
-            if err > 1 and h > controller.dt_min:  # refused: retried from x_n with a smaller step
-                if h <= _MIN_STEP * (t1 - t0):
+            err = controller.error(controller.measured(x_new, run.params), y_now, y_before, size, h_prev, scale)
+            # refused: retried from x_n with a smaller step, unless the proposal is already at
+            # dt_min (compared before the end-point snapping, which rounds the size)
+            if err > 1 and h > controller.dt_min:
+                if size <= _MIN_STEP * (t1 - t0):
                     raise StepFailure(f"the local error test still fails (error {err:.3g} times the tolerance) "
-                                      f"at a step of {h:.3g}: give the controller a larger rtol/atol or a "
+                                      f"at a step of {size:.3g}: give the controller a larger rtol/atol or a "
                                       "dt_min at which to accept such steps", step=k, t=t_new)
                 stats.rejected_steps += 1
-                h = controller.propose(h, err)
+                h = controller.propose(size, err)
                 continue
-            run.h_next = controller.propose(t_new - run.t, err)
+            run.h_next = controller.propose(size, err)
             break
-        run.history = (y_now if y_now is not None else controller.measured(run.x, run.params), t_new - run.t)
-        stats.step_sizes.append(t_new - run.t)
+        run.history = (y_now if y_now is not None else controller.measured(run.x, run.params), size)
+        stats.step_sizes.append(size)
         return t_new, x_new, r_norm
 
     def save_checkpoint():

@@ -145,3 +145,20 @@ def test_fsw_scene_with_adaptive_steps():
     assert len(hs) == res.stats.time_steps == len(res.probes["t"]) - 1
     # the sizes t_{k+1} - t_k telescope to t_end up to one rounding each (steps * eps * t_end ~ 1e-17)
     assert hs.max() <= motion_dt_max(scene) and abs(hs.sum() - 0.003) <= len(hs) * np.finfo(float).eps * 0.003
+
+
+def _jump(x, x_old, t, dt, p):
+    """An algebraic unknown that jumps at t = 0.5: x = 0 before, 1 after (Heaviside)."""
+    return x - (t > 0.5)
+
+
+def test_an_error_that_does_not_shrink_with_the_step_fails_by_name_or_is_accepted_at_dt_min():
+    """Across the jump x_{n+1} - x_pred = 1 whatever h, so no step passes the error test: with
+    dt_min = 0 the run stops with a StepFailure that says so; with dt_min > 0 the step of
+    dt_min is accepted and the run goes on."""
+    kw = dict(t0=0.0, t1=1.0, dt=0.01, solver=jaxanm.Newton(tol=1e-12), save_every=1)
+    with pytest.raises(jaxanm.StepFailure, match="local error test still fails"):
+        jaxanm.integrate(_jump, np.zeros(1), None, controller=jaxanm.StepController(rtol=0, atol=1e-6), **kw)
+    sol = jaxanm.integrate(_jump, np.zeros(1), None, controller=jaxanm.StepController(rtol=0, atol=1e-6, dt_min=1e-3),
+                           **kw)
+    assert sol.ts[-1] == 1.0 and sol.xs[-1, 0] == 1.0
