@@ -41,7 +41,7 @@ from jaxanm.fsw.model import discretise
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run
 from jaxanm.linalg import Factorization
-from jaxanm.solvers import CHECK_LIMIT, Problem, SeriesPath, validity_range
+from jaxanm.solvers import ANM, Problem, SeriesPath
 
 EXACT_TOL = 1e-13
 """The reference x* of a step: full Newton until the relative correction is below this."""
@@ -82,18 +82,15 @@ def series(P: Problem, fact, d_s, args, homotopy: str, orders: int) -> np.ndarra
 def anm_acceptance(P: Problem, fact, coeffs, d_s, args, tol: float):
     """(solves, accepted state) of the order-adaptive ANM with the "state" criterion: the first
     order j >= 2 whose a_max reaches 1 and whose end point passes the end-point check (one more
-    residual and solve each time it is tried), as :class:`jaxanm.ANM` does; None if no order
-    up to ``len(coeffs)`` passes."""
-    solves = 0
+    residual and solve each time it is tried), by the stepper's own acceptance
+    (``jaxanm.solvers._ANMStepper``); None if no order up to ``len(coeffs)`` passes."""
+    stepper = ANM(order=coeffs.shape[0], tol=tol, criterion="state", adaptive=True).init(P)
+    stepper.fact = fact
+    checks = P.stats.residual_evaluations  # each end-point check evaluates one residual
     for j in range(2, coeffs.shape[0] + 1):
-        if validity_range(coeffs[:j], P.scale, tol, state=d_s) < 1.0:
-            continue
-        d_end = d_s + coeffs[:j].sum(axis=0)
-        solves += 1
-        distance = P.norm(fact.solve(P.residual(d_end, *args)))
-        promised = max(tol * P.norm(coeffs[0]), tol * P.norm(d_s))
-        if distance <= CHECK_LIMIT * promised:
-            return j + solves, d_end
+        d_end = stepper._accept_early(coeffs[:j], d_s, *args)
+        if d_end is not None:
+            return j + P.stats.residual_evaluations - checks, d_end
     return None
 
 
