@@ -1,0 +1,345 @@
+"""SUNDIALS IDA (variable-order BDF) on a jaxanm step residual: the external adaptive baseline.
+
+jaxanm's problems are written as the implicit-Euler step residual
+``R(x_new, x_old, t_new, dt, params)`` (:func:`jaxanm.integrate`).  When ``R`` depends on
+``x_old`` only through the difference quotient ``(L x_new - L x_old) / dt`` of a *linear*
+map ``L`` (values of the fields at the points), apart from row scalings that depend on ``dt``
+alone, then for any fixed ``h0 > 0``::
+
+    F(t, y, y') = R(y, y - h0 y', t, h0, params)
+
+is an exact DAE residual ``F(t, y, y') = D(h0) G(t, y, y')``: since ``L`` is linear,
+``(L y - L (y - h0 y')) / h0 = L y'``, and ``D(h0)`` is a constant positive diagonal row
+scaling, which changes neither the solution nor IDA's Newton test (made on the corrections of
+``y``, not on the residual).  The FSW residual (:mod:`jaxanm.fsw.model`) is of this form on
+fixed points (``tracers`` or no motion): ``x_old`` enters through ``_old_value`` in
+``dT/dt`` and, with ``inertia``, ``dV/dt``, both MLS values (linear in the nodal parameters),
+and ``dt`` further enters only the row scalings ``s_plate``, ``s_tool``, ``s_edge`` and the
+momentum rows' ``stiff`` (constants for fixed ``h0``); ``t`` enters nowhere.
+``tests/test_ida.py`` checks the claim on the FSW rows: ``R(y, y - h y', h) / R(y, y - h' y', h')``
+is one row-wise ratio, the same for independent random ``(y, y')``.  A Lagrangian scene is
+*not* of this form (its points move between steps and ``x_old`` is refitted by an
+``after_step`` hook); IDA is not offered there.
+
+IDA's Newton matrix is ``dF/dy + cj dF/dy' = R_x + (1 - cj h0) R_xold``.  It is computed by
+the project's coloured compressed forward-mode Jacobian (:class:`jaxanm.SparseJacobian`)
+of ``x -> R(x, x - h0 (y' + cj (x - y)), t, h0)`` at ``x = y`` (whose derivative is exactly
+that matrix), handed to IDA's sparse direct solver (SuperLU_MT) in CSC order.  The pattern
+must contain the nonzeros of both ``R_x`` and ``R_xold`` (the FSW model's ``sparsity`` does:
+each row couples to its stencil, all fields).
+
+Consistent initial values.  IDA needs ``F(t0, y0, y0') = 0``.  Unless ``yp0`` is given, the
+run starts with two implicit-Euler steps of size ``ic_dt`` (jaxanm's Newton at ``ic_tol``):
+from ``x1, x2`` the pair ``y0 = x2, y0' = (x2 - x1) / ic_dt`` is consistent *exactly*
+(``F(y0, y0') = D(h0) / D(ic_dt) R(x2, x1, ic_dt) = 0`` to the Newton tolerance), and two
+steps instead of one let fast transients (the FSW velocity relaxes in ~1e-9 s after the
+impulsive start) settle before the difference quotient is taken.  IDA then starts at
+``t0 + 2 ic_dt``; the error this start adds is implicit Euler's over ``2 ic_dt`` (default
+``1e-6`` of the span).  IDA's own ``IDACalcIC`` is not used: its ``YA_YDP`` mode needs a
+semi-explicit split into differential and algebraic *unknowns*, which MLS nodal parameters
+do not have (every column of ``dF/dy'`` is nonzero), and its ``Y`` mode would solve for all
+of ``y0`` given ``y0'``.
+
+Outputs are taken at the requested times exactly: each internal step is one call of IDA's
+``onestep`` mode with ``tstop`` at the next output time (so the steps are counted, and no
+interpolation error is added at the outputs).  The wheel exposes the residual and Jacobian
+counts only; steps are counted here, and linear solves equal the residual evaluations IDA
+makes while stepping (its Newton iteration evaluates the residual once per linear solve; with
+a user Jacobian it makes no difference-quotient evaluations).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+import warnings
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse
+
+from ._x64 import entry_point
+from .errors import InputError
+from .integrate import params_float64
+from .jacobian import SparseJacobian, detect_sparsity
+
+__all__ = ["IDAFailure", "IDASolution", "IDAStats", "dae_residual", "integrate_ida"]
+
+
+class IDAFailure(RuntimeError):
+    """IDA stopped before the last output time; ``status`` (IDA's flag), ``t`` (time reached),
+    ``reason`` (IDA's message) and ``stats`` (:class:`IDAStats` so far) say why and where."""
+
+    def __init__(self, reason: str, *, status: int, t: float, stats: "IDAStats"):
+        self.reason, self.status, self.t, self.stats = reason, int(status), float(t), stats
+        super().__init__(f"IDA failed at t = {self.t:.6g} (flag {self.status}): {reason}; "
+                         f"{stats.steps} steps, {stats.jacobian_evaluations} Jacobians so far")
+
+
+@dataclasses.dataclass
+class IDAStats:
+    """Counters and wall times of one :func:`integrate_ida` run.
+
+    ``steps``: IDA's internal (accepted) steps; ``residual_evaluations`` and
+    ``jacobian_evaluations``: calls made by IDA (Jacobians are also its matrix setups: one
+    SuperLU_MT factorisation each); ``linear_solves``: IDA's Newton iterations (one residual
+    evaluation each, module docstring); ``ic_steps``: implicit-Euler steps of the consistent
+    start (their Newton work is in ``ic_stats``, a :class:`jaxanm.Stats`).  ``wall_s``: the
+    whole call; ``wall_time`` splits it into ``start`` (consistent start, sparsity, checks),
+    ``residual`` and ``jacobian`` (the JAX calls IDA made) and ``ida`` (the rest: IDA's own
+    linear algebra and bookkeeping).
+    """
+
+    steps: int = 0
+    residual_evaluations: int = 0
+    jacobian_evaluations: int = 0
+    linear_solves: int = 0
+    ic_steps: int = 0
+    ic_stats: object = None
+    wall_s: float = 0.0
+    wall_time: dict = dataclasses.field(default_factory=lambda: dict.fromkeys(("start", "residual", "jacobian", "ida"), 0.0))
+
+    def summary(self) -> dict:
+        """The counters and wall times as a plain dictionary (JSON-serialisable)."""
+        d = {k: getattr(self, k) for k in ("steps", "residual_evaluations", "jacobian_evaluations", "linear_solves",
+                                           "ic_steps", "wall_s")}
+        d["wall_time"] = {k: round(v, 4) for k, v in self.wall_time.items()}
+        return d
+
+
+@dataclasses.dataclass
+class IDASolution:
+    """Result of :func:`integrate_ida`: ``ts (S,)`` the output times, ``xs (S, n)`` the states
+    and ``xps (S, n)`` their time derivatives there, ``t_start`` the time IDA started from
+    (after the consistent start), ``stats`` an :class:`IDAStats`."""
+
+    ts: np.ndarray
+    xs: np.ndarray
+    xps: np.ndarray
+    t_start: float
+    stats: IDAStats
+
+
+@functools.lru_cache(maxsize=64)
+def dae_residual(residual: Callable) -> Callable:
+    """Jitted ``(t, y, yp, h0, params) -> R(y, y - h0 yp, t, h0, params)``: the DAE residual
+    ``F(t, y, y')`` of a step residual of the contract above (module docstring)."""
+    return jax.jit(lambda t, y, yp, h0, params: residual(y, y - h0 * yp, t, h0, params))
+
+
+@functools.lru_cache(maxsize=64)
+def _newton_matrix_residual(residual: Callable) -> Callable:
+    """``(x, (y, yp, cj), t, h0, params) -> R(x, x - h0 (yp + cj (x - y)), t, h0, params)``:
+    its derivative in ``x`` at ``x = y`` is IDA's ``dF/dy + cj dF/dy'`` (one function object per
+    residual, so the compressed Jacobian compiles once)."""
+
+    def g(x, aux, t, h0, params):
+        y, yp, cj = aux
+        return residual(x, x - h0 * (yp + cj * (x - y)), t, h0, params)
+
+    return g
+
+
+def _csc_pattern(pattern, n: int) -> scipy.sparse.csc_matrix:
+    """Boolean CSC pattern, duplicates summed and indices sorted (the order SparseJacobian uses)."""
+    coo = scipy.sparse.coo_matrix(pattern)
+    if coo.shape != (n, n):
+        raise InputError(f"sparsity must be an ({n}, {n}) pattern for {n} unknowns, got {coo.shape}")
+    csc = scipy.sparse.csc_matrix((np.ones(coo.nnz, dtype=bool), (coo.row, coo.col)), shape=(n, n))
+    csc.sum_duplicates()
+    csc.sort_indices()
+    return csc
+
+
+def _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps):
+    """Validate the run's inputs before any computation; return them as float64 arrays."""
+    x0 = np.asarray(x0, dtype=np.float64)
+    if x0.ndim != 1 or x0.size == 0:
+        raise InputError(f"x0 must be a non-empty 1-D array of unknowns, got shape {x0.shape}; flatten your state")
+    if not np.all(np.isfinite(x0)):
+        raise InputError(f"x0 has {int(np.sum(~np.isfinite(x0)))} non-finite entries; give a finite initial state")
+    if not (isinstance(t0, (int, float, np.floating, np.integer)) and math.isfinite(t0)):
+        raise InputError(f"t0 must be a finite number, got {t0!r}")
+    t_out = np.atleast_1d(np.asarray(t_out, dtype=np.float64))
+    if t_out.ndim != 1 or t_out.size == 0 or not np.all(np.isfinite(t_out)):
+        raise InputError(f"t_out must be a non-empty 1-D array of finite output times, got {t_out!r}")
+    if not (np.all(np.diff(t_out) > 0) and t_out[0] > t0):
+        raise InputError(f"t_out must increase strictly and start after t0 = {t0!r}; got {t_out!r}")
+    if not (isinstance(rtol, (int, float, np.floating)) and 0 < rtol < 1):
+        raise InputError(f"rtol must be a number in (0, 1) (IDA recommends 1e-15 <= rtol <= 1e-3), got {rtol!r}")
+    atol_a = np.asarray(atol, dtype=np.float64)
+    if atol_a.ndim > 1 or (atol_a.ndim == 1 and atol_a.size != x0.size) or not np.all(np.isfinite(atol_a) & (atol_a >= 0)):
+        raise InputError(f"atol must be a number >= 0 or an array of {x0.size} of them (relative to scale), got {atol!r}")
+    if rtol == 0 and not np.any(atol_a > 0):
+        raise InputError("rtol and atol are both zero: IDA's error weights 1/(rtol |y| + atol scale) would be infinite")
+    scale = np.broadcast_to(np.asarray(1.0 if scale is None else scale, dtype=np.float64), x0.shape).copy()
+    if not np.all(np.isfinite(scale) & (scale > 0)):
+        raise InputError("scale must be positive and finite (a characteristic magnitude per unknown)")
+    span = float(t_out[-1] - t0)
+    h0 = 1e-3 * span if h0 is None else h0
+    if not (isinstance(h0, (int, float, np.floating)) and math.isfinite(h0) and h0 > 0):
+        raise InputError(f"h0 (the dt of the DAE residual's row scalings) must be a positive number, got {h0!r}")
+    ic_dt = 1e-6 * span if ic_dt is None else ic_dt
+    if yp0 is None:
+        if not (isinstance(ic_dt, (int, float, np.floating)) and math.isfinite(ic_dt) and 0 < 2 * ic_dt < t_out[0] - t0):
+            raise InputError(f"ic_dt must be positive with t0 + 2 ic_dt < the first output time {t_out[0]!r} "
+                             f"(the consistent start takes two implicit-Euler steps of ic_dt), got {ic_dt!r}")
+    else:
+        yp0 = np.asarray(yp0, dtype=np.float64)
+        if yp0.shape != x0.shape or not np.all(np.isfinite(yp0)):
+            raise InputError(f"yp0 must be a finite array of the shape of x0 {x0.shape}, got shape {yp0.shape}")
+    if not (isinstance(max_steps, int) and max_steps >= 1):
+        raise InputError(f"max_steps must be an integer >= 1, got {max_steps!r}")
+    return x0, t_out, atol_a, scale, float(h0), yp0, ic_dt
+
+
+def _consistent_start(residual, x0, params, t0, ic_dt, ic_tol, scale, pattern):
+    """Two implicit-Euler steps of ``ic_dt``: ``(t0 + 2 ic_dt, x2, (x2 - x1) / ic_dt, stats)``."""
+    from .integrate import integrate
+    from .solvers import Newton
+
+
+    sol = integrate(residual, x0, params, t0=t0, t1=t0 + 2 * ic_dt, dt=ic_dt, solver=Newton(tol=ic_tol),
+                    scale=scale, jacobian="sparse", sparsity=pattern, save_every=1)
+    x1, x2 = sol.xs[-2], sol.xs[-1]
+    return float(sol.ts[-1]), x2, (x2 - x1) / ic_dt, sol.stats
+
+
+@entry_point
+def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol: float = 1e-6,
+                  atol=1e-8, scale=None, sparsity=None, h0: float | None = None, yp0=None,
+                  ic_dt: float | None = None, ic_tol: float = 1e-12, consistency_tol: float = 1e-8,
+                  max_order: int = 5, first_step: float = 0.0, max_step: float = 0.0,
+                  max_steps: int = 200_000, nthreads: int = 1) -> IDASolution:
+    """Integrate the DAE ``R(y, y - h0 y', t, h0, params) = 0`` of a jaxanm step residual with IDA.
+
+    Parameters
+    ----------
+    residual : callable
+        ``residual(x_new, x_old, t_new, dt, params) -> (n,)`` in ``jax.numpy``, of the form of
+        the module docstring (``x_old`` only through a difference quotient of a linear map).
+    x0 : array (n,)
+        State at ``t0``.
+    params : pytree
+        Parameters of the residual (fixed for the run).
+    t0 : float
+        Initial time.
+    t_out : array of float
+        Output times, strictly increasing, after ``t0`` (after ``t0 + 2 ic_dt`` without ``yp0``).
+    rtol, atol : float
+        IDA's tolerances: error weights ``1 / (rtol |y_i| + atol scale_i)``, so ``atol`` is
+        relative to each unknown's ``scale`` (an array of ``n`` is accepted too).
+    scale : float or array (n,)
+        Characteristic magnitude of each unknown (as in :func:`jaxanm.integrate`).
+    sparsity : scipy sparse matrix, callable ``params -> pattern``, or None
+        Pattern of ``R_x`` and ``R_xold`` together; None detects it from dense probes
+        (:func:`jaxanm.detect_sparsity`, small problems only).
+    h0 : float
+        The ``dt`` of the residual's row scalings (default ``1e-3`` of the span); the DAE does
+        not depend on it, the conditioning of its rows does.
+    yp0 : array (n,), optional
+        A consistent ``y'(t0)``; checked (``max |F| <= consistency_tol``).  Without it, the
+        consistent start of the module docstring.
+    ic_dt, ic_tol : float
+        Step and Newton tolerance of that start (default ``ic_dt`` = ``1e-6`` of the span).
+    consistency_tol : float
+        Largest ``max |F(t0, x0, yp0)|`` accepted for a given ``yp0`` (scaled rows).
+    max_order, first_step, max_step : IDA's options (BDF order 1-5; 0 lets IDA choose).
+    max_steps : int
+        Internal steps allowed in all (an :class:`IDAFailure` beyond).
+    nthreads : int
+        Threads of SuperLU_MT.
+
+    Returns
+    -------
+    IDASolution
+
+    Raises
+    ------
+    InputError
+        Bad input (before any long computation): the message names the input and the fix.
+    IDAFailure
+        IDA stopped (error test or Newton failures at the minimum step, too many steps, a
+        residual that went non-finite): its flag, message and time.
+    """
+    import sksundae
+
+    wall0 = time.perf_counter()
+    x0, t_out, atol_a, scale, h0, yp0, ic_dt = _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps)
+    n = x0.size
+    params = jax.device_put(params_float64(params))
+    F = dae_residual(residual)
+    f0 = np.asarray(F(t0, x0, np.zeros(n) if yp0 is None else yp0, h0, params))
+    if f0.shape != (n,):
+        raise InputError(f"residual returned shape {f0.shape} for {n} unknowns; it must return one row per unknown")
+    if not np.all(np.isfinite(f0)):
+        raise InputError(f"residual is not finite at x0 ({int(np.sum(~np.isfinite(f0)))} rows); check x0 and params")
+    if yp0 is not None and np.max(np.abs(f0)) > consistency_tol:
+        raise InputError(f"yp0 is not consistent: max |F(t0, x0, yp0)| = {np.max(np.abs(f0)):.3g} > consistency_tol = "
+                         f"{consistency_tol:g}; give a consistent yp0, or none (then a consistent start is computed)")
+    g = _newton_matrix_residual(residual)
+    if sparsity is None:
+        pattern = detect_sparsity(g, x0, (x0, jnp.zeros(n), 0.37 / h0), t0, h0, params)
+    else:
+        pattern = sparsity(params) if callable(sparsity) else sparsity
+    pattern = _csc_pattern(pattern, n)
+    jac = SparseJacobian(g, pattern)
+    stats = IDAStats()
+    if yp0 is None:
+        t_start, y0, yp0, stats.ic_stats = _consistent_start(residual, x0, params, t0, ic_dt, ic_tol, scale, pattern)
+        stats.ic_steps = 2
+    else:
+        t_start, y0 = float(t0), x0
+    stats.wall_time["start"] = time.perf_counter() - wall0
+
+    def resfn(t, y, yp, res):
+        t1 = time.perf_counter()
+        res[:] = np.asarray(F(t, y, yp, h0, params))
+        stats.residual_evaluations += 1
+        stats.wall_time["residual"] += time.perf_counter() - t1
+
+    def jacfn(t, y, yp, res, cj, JJ):
+        t1 = time.perf_counter()
+        J = jac(y, (y, yp, cj), t, h0, params)
+        JJ[:] = J.data
+        stats.jacobian_evaluations += 1
+        stats.wall_time["jacobian"] += time.perf_counter() - t1
+
+    with warnings.catch_warnings():  # the wheel warns that its own sparse DQ Jacobian is unused: jacfn replaces it
+        warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
+        solver = sksundae.ida.IDA(resfn, jacfn=jacfn, linsolver="sparse", sparsity=pattern.astype(np.float64),
+                                  nthreads=nthreads, rtol=float(rtol), atol=atol_a * scale, max_order=int(max_order),
+                                  first_step=float(first_step), max_step=float(max_step))
+    r = solver.init_step(t_start, y0, yp0)
+    if not r.success:
+        raise IDAFailure(str(r.message), status=r.status, t=t_start, stats=stats)
+    ts, xs, xps = [], [], []
+    t = t_start
+    for t_next in t_out:
+        if t_next <= t_start:
+            raise InputError(f"output time {t_next!r} is before IDA's start {t_start!r} (t0 + 2 ic_dt): give a smaller ic_dt")
+        while t < t_next:
+            if stats.steps >= max_steps:
+                stats.wall_s = time.perf_counter() - wall0
+                raise IDAFailure(f"more than max_steps = {max_steps} steps; raise max_steps or loosen rtol/atol",
+                                 status=-1, t=t, stats=stats)
+            r = solver.step(float(t_next), method="onestep", tstop=float(t_next))
+            if not r.success:
+                stats.wall_s = time.perf_counter() - wall0
+                raise IDAFailure(str(r.message), status=r.status, t=float(r.t), stats=stats)
+            stats.steps += 1
+            t = float(r.t)
+            if not np.all(np.isfinite(r.y)):
+                stats.wall_s = time.perf_counter() - wall0
+                raise IDAFailure("the state went non-finite", status=-99, t=t, stats=stats)
+        ts.append(t)
+        xs.append(np.array(r.y))
+        xps.append(np.array(r.yp))
+    stats.linear_solves = stats.residual_evaluations
+    stats.wall_s = time.perf_counter() - wall0
+    stats.wall_time["ida"] = max(stats.wall_s - sum(v for k, v in stats.wall_time.items() if k != "ida"), 0.0)
+    return IDASolution(np.array(ts), np.array(xs), np.array(xps), t_start, stats)
