@@ -29,7 +29,7 @@ must contain the nonzeros of both ``R_x`` and ``R_xold`` (the FSW model's ``spar
 each row couples to its stencil, all fields).
 
 Consistent initial values.  IDA needs ``F(t0, y0, y0') = 0``.  Unless ``yp0`` is given, the
-run starts with two implicit-Euler steps of size ``ic_dt`` (jaxanm's Newton at ``ic_tol``):
+run starts with two implicit-Euler steps of size ``ic_dt`` (jaxanm's modified Newton at ``ic_tol``):
 from ``x1, x2`` the pair ``y0 = x2, y0' = (x2 - x1) / ic_dt`` is consistent *exactly*
 (``F(y0, y0') = D(h0) / D(ic_dt) R(x2, x1, ic_dt) = 0`` to the Newton tolerance), and two
 steps instead of one let fast transients (the FSW velocity relaxes in ~1e-9 s after the
