@@ -44,8 +44,41 @@ def probe_values(result) -> dict:
     return {name: np.array([rec[k][-1] for k in ("T", "u", "v")]) for name, rec in result.probes.items() if name != "t"}
 
 
-def one_run(scene_name: str, overrides: dict) -> dict:
-    """A compiling run of two steps, then the measured run; its cost and probe values."""
+def probe_history(result, times) -> dict:
+    """T, u, v (3, len(times)) at every registration point at the common ``times``.
+
+    Runs at different step sizes record their probes at different steps; compared step by step
+    (or at mismatched times) their histories give NaN or meaningless errors.  Each history is
+    read at the given times: exactly where a step ended there (within 1e-9 of the span: fixed
+    steps that divide the times, adaptive steps that end on the save times), else by linear
+    interpolation between the two steps around it (flagged in the ``"interpolated"`` entry).
+    """
+    t = np.asarray(result.probes["t"], dtype=np.float64)
+    times = np.asarray(times, dtype=np.float64)
+    idx = np.clip(np.searchsorted(t, times), 0, len(t) - 1)
+    prev = np.maximum(idx - 1, 0)
+    near = np.where(np.abs(t[idx] - times) <= np.abs(t[prev] - times), idx, prev)
+    exact = np.abs(t[near] - times) <= 1e-9 * max(t[-1], 1e-300)
+    out = {"interpolated": bool(not np.all(exact))}
+    for name, rec in result.probes.items():
+        if name == "t":
+            continue
+        out[name] = np.array([np.where(exact, np.asarray(rec[k])[near], np.interp(times, t, np.asarray(rec[k])))
+                              for k in ("T", "u", "v")])
+    return out
+
+
+def final_fields(result) -> np.ndarray:
+    """T, u, v (3, N) at every point at the run's last saved time."""
+    return np.array([result.T[-1], result.u[-1], result.v[-1]])
+
+
+def one_run(scene_name: str, overrides: dict, times=None) -> dict:
+    """A compiling run of two steps, then the measured run; its cost and probe values.
+
+    With ``times``, also the probe histories at those times (:func:`probe_history`) and the
+    fields at the last time (``"fields"``, :func:`final_fields`).
+    """
     base = load_scene(scene_name)
     warm = base.with_overrides({**overrides, "time.t_end": repr(2 * float(overrides.get("time.dt", base.time.dt))),
                                 "time.save": ""})
@@ -55,10 +88,16 @@ def one_run(scene_name: str, overrides: dict) -> dict:
     result = run(scene)
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
     st = result.stats
-    return {"overrides": overrides, "wall_s": wall, "cpu_s": cpu, "load": [load0, os.getloadavg()[0]],
-            "steps": st.time_steps, "rejected": st.rejected_steps, "factorizations": st.factorizations,
-            "newton_iterations": st.newton_iterations, "series_orders": st.series_orders,
-            "probes": {k: v.tolist() for k, v in probe_values(result).items()}}
+    row = {"overrides": overrides, "wall_s": wall, "cpu_s": cpu, "load": [load0, os.getloadavg()[0]],
+           "steps": st.time_steps, "rejected": st.rejected_steps, "factorizations": st.factorizations,
+           "newton_iterations": st.newton_iterations, "series_orders": st.series_orders,
+           "probes": {k: v.tolist() for k, v in probe_values(result).items()}}
+    if times is not None:
+        hist = probe_history(result, times)
+        row["interpolated"] = hist.pop("interpolated")
+        row["history"] = {k: v.tolist() for k, v in hist.items()}
+        row["fields"] = final_fields(result).tolist()
+    return row
 
 
 def errors(row: dict, ref: dict, T0: float, U: float) -> tuple:
@@ -69,16 +108,33 @@ def errors(row: dict, ref: dict, T0: float, U: float) -> tuple:
     return eT, eV
 
 
-def reference(scene_name: str, t_end: float, dt_ref: float, tol: float) -> tuple:
-    """Richardson-extrapolated probe values and their estimated error (module docstring)."""
+def reference(scene_name: str, t_end: float, dt_ref: float, tol: float, times=None) -> tuple:
+    """Richardson-extrapolated probe values and their estimated error (module docstring).
+
+    Implicit Euler at ``2 dt_ref``, ``dt_ref`` and ``dt_ref / 2`` (modified Newton at ``tol``);
+    returns ``(fine, coarse, runs)``: the extrapolations ``2 x(dt_ref/2) - x(dt_ref)`` and
+    ``2 x(dt_ref) - x(2 dt_ref)`` of the probe values at t_end, and the three runs.  With
+    ``times``, ``fine`` and ``coarse`` are dicts ``{"probes", "history", "fields"}`` that also
+    extrapolate the probe histories at ``times`` and the fields at t_end (the extrapolations
+    are second order, so ``|fine - coarse| / 3`` estimates the error of ``fine``).
+    """
     runs = {}
     for dt in (2 * dt_ref, dt_ref, dt_ref / 2):
         runs[dt] = one_run(scene_name, {"time.t_end": repr(t_end), "time.dt": repr(dt), "time.save": "",
-                                        "solver.kind": "modified_newton", "solver.tol": repr(tol)})
+                                        "solver.kind": "modified_newton", "solver.tol": repr(tol)}, times=times)
         print(f"reference run dt = {dt:g}: {runs[dt]['steps']} steps, {runs[dt]['wall_s']:.0f} s", flush=True)
-    p = {dt: {k: np.array(v) for k, v in r["probes"].items()} for dt, r in runs.items()}
-    fine = {k: 2 * p[dt_ref / 2][k] - p[dt_ref][k] for k in p[dt_ref]}
-    coarse = {k: 2 * p[dt_ref][k] - p[2 * dt_ref][k] for k in p[dt_ref]}
+
+    def extrapolate(key, fine_dt, coarse_dt):
+        a, b = runs[fine_dt][key], runs[coarse_dt][key]
+        if isinstance(a, dict):
+            return {k: 2 * np.array(a[k]) - np.array(b[k]) for k in a}
+        return 2 * np.array(a) - np.array(b)
+
+    keys = ("probes",) if times is None else ("probes", "history", "fields")
+    fine = {k: extrapolate(k, dt_ref / 2, dt_ref) for k in keys}
+    coarse = {k: extrapolate(k, dt_ref, 2 * dt_ref) for k in keys}
+    if times is None:
+        return fine["probes"], coarse["probes"], runs
     return fine, coarse, runs
 
 
