@@ -18,11 +18,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import scipy.sparse
-import scipy.sparse.linalg
 
 import jaxanm
 from jaxanm.fsw import load_scene, run
+from jaxanm.fsw.axisymmetric import couette_exact, radial_finite_volumes
 from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud
 from jaxanm.fsw.model import discretise
 from jaxanm.fsw.scene import Geometry, Material, Scene, Thermal, Time
@@ -128,17 +127,6 @@ def test_residual_rows_equal_the_pointwise_equations():
 
 # ------------------------------------------------------------------ power-law Couette flow
 
-def couette_exact(r, R1, R2, omega, n):
-    """Steady v_theta(r) of a power-law fluid between the turning tool and the fixed ring.
-
-    The shear stress is C / r^2; with mu = K epsbar^(n-1) / 3 and epsbar = |s| / sqrt(3),
-    s = r d(v/r)/dr, this gives s ~ -r^(-2/n), so v/r = a r^(-2/n) + b, fixed by
-    v(R1) = omega R1 and v(R2) = 0.  n = 1: v = omega R1^2 (R2^2/r - r) / (R2^2 - R1^2).
-    """
-    a = 2.0 / n
-    return omega * r * (r ** -a - R2 ** -a) / (R1 ** -a - R2 ** -a)
-
-
 def couette_error(K: int, ns, eps0: float) -> float:
     """Max |V - V_exact| / (omega R1) over the plate, at dr = (R2 - R1) / K.
 
@@ -209,33 +197,6 @@ def test_couette_paper_exponent_converges():
 
 
 # ------------------------------------------------------------------ conduction across the jump
-
-def radial_finite_volumes(R1, R2, k_tool, k_plate, c_tool, c_plate, h, Ta, T0, dt, steps, cells=3000):
-    """Axisymmetric implicit-Euler finite volumes on [0, R2]: an independent reference.
-
-    Cell-centred, the tool/plate interface on a face (series resistance of the two half cells
-    across it: flux and temperature continuous), Robin flux h (T - Ta) through a half cell at
-    R2.  Returns cell centres and temperatures after ``steps`` steps from uniform T0.
-    """
-    n_tool = round(cells * R1 / R2)
-    edges = np.concatenate([np.linspace(0, R1, n_tool + 1), np.linspace(R1, R2, cells - n_tool + 1)[1:]])
-    rc, width = 0.5 * (edges[1:] + edges[:-1]), np.diff(edges)
-    k = np.where(rc < R1, k_tool, k_plate)
-    cap = np.where(rc < R1, c_tool, c_plate) * 0.5 * (edges[1:] ** 2 - edges[:-1] ** 2) / dt
-    g = edges[1:-1] / (0.5 * width[:-1] / k[:-1] + 0.5 * width[1:] / k[1:])
-    g_out = R2 / (0.5 * width[-1] / k[-1] + 1.0 / h)
-    diag = cap.copy()
-    diag[:-1] += g
-    diag[1:] += g
-    diag[-1] += g_out
-    lu = scipy.sparse.linalg.splu(scipy.sparse.diags([diag, -g, -g], [0, 1, -1], format="csc"))
-    T = np.full(rc.size, T0)
-    for _ in range(steps):
-        b = cap * T
-        b[-1] += g_out * Ta
-        T = lu.solve(b)
-    return rc, T
-
 
 def conduction_error(K: int) -> float:
     """Max |T - T_ref| / (T0 - Ta) at t = 0.5 s of conduction_small at dr = (R2 - R1) / K."""
