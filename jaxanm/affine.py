@@ -26,6 +26,8 @@ import jax
 from jax import lax
 from jax.extend import core as jex_core
 
+from .jet_scale import scale
+
 # Linear in all operands jointly (jet's own ``deflinear`` list, restricted to real arithmetic).
 _LINEAR = {lax.neg_p, lax.add_p, lax.sub_p, lax.convert_element_type_p, lax.broadcast_in_dim_p,
            lax.concatenate_p, lax.pad_p, lax.reshape_p, lax.squeeze_p, lax.rev_p, lax.transpose_p,
@@ -86,6 +88,7 @@ def split_affine(fun: Callable, x, *args) -> AffineSplit:
     depends = {jaxpr.invars[0]}
     affine = {jaxpr.invars[0]}
     kinds = []
+    scaled = {}  # rest equations that multiply or divide by a constant: id(eqn) -> x operand's index
     for eqn in jaxpr.eqns:
         ins = [v for v in eqn.invars]
         dep = [isinstance(v, jex_core.Var) and v in depends for v in ins]
@@ -95,6 +98,9 @@ def split_affine(fun: Callable, x, *args) -> AffineSplit:
         aff = [isinstance(v, jex_core.Var) and v in affine for v in ins]
         is_affine = _affine(eqn, dep, aff)
         kinds.append("affine" if is_affine else "rest")
+        if (not is_affine and sum(dep) == 1 and all(v is None for v in eqn.params.values())
+                and (eqn.primitive is lax.mul_p or (eqn.primitive is lax.div_p and dep[0]))):
+            scaled[id(eqn)] = dep.index(True)
         depends.update(eqn.outvars)
         if is_affine:
             affine.update(eqn.outvars)
@@ -115,7 +121,11 @@ def split_affine(fun: Callable, x, *args) -> AffineSplit:
     def evaluate(env, eqns):
         for eqn in eqns:
             vals = [v.val if isinstance(v, jex_core.Literal) else env[v] for v in eqn.invars]
-            out = eqn.primitive.bind(*vals, **eqn.params)
+            if id(eqn) in scaled:  # a constant factor: linear for jet (jaxanm.jet_scale)
+                i = scaled[id(eqn)]
+                out = scale(vals[i], vals[1 - i], eqn.primitive.name)
+            else:
+                out = eqn.primitive.bind(*vals, **eqn.params)
             for var, val in zip(eqn.outvars, out if eqn.primitive.multiple_results else [out]):
                 env[var] = val
 
