@@ -4,10 +4,16 @@ For each order p and each way of feeding jet, in a fresh subprocess (so that eve
 cold and the peak memory is that variant's), on the state after ``--warm`` Newton steps of a
 Lagrangian run (``benchmarks/profile_host_step.warm_state``):
 
-- ``truncated``: one jet per order, truncated at the terms known (what both modes of the ANM
-  do since 2026-12-02): compile time of all of them, and the time of the p - 1 calls of one
-  series.  (The zero-padded single jet the fixed-order ANM used before is no longer in the
+- ``ladder``: what the ANM does: one jet per order, truncated at the terms known, up to
+  ``jaxanm.series.EXACT_TERMS`` terms, and beyond that jets padded with zero terms to the next
+  rung of a geometric ladder, capped at p - 1 (``jaxanm.series.jet_length``);
+- ``exact``: one jet per order at every order (what the ANM did from 2026-12-02 until the
+  ladder; the same as ``ladder`` up to EXACT_TERMS).
+  (The zero-padded single jet the fixed-order ANM used before is no longer in the
   engine; its rows in docs/series_cost.md were measured with commit cb06729.)
+
+Each variant: the compile time of all the jets one series needs, and the time of the p - 1
+calls of one series.
 
 both for the convex homotopy (the residual's coefficient ``[R]_{j-1}`` at order j) and the
 Newton homotopy (``[R]_j`` with the provisional ``c_j = c_{j-1}``, one more term), with the
@@ -42,8 +48,12 @@ def measure(order: int, mode: str, homotopy: str, repeats: int, warm: int) -> di
     import jax
 
     import jaxanm
+    from jaxanm import series as series_module
     from jaxanm.solvers import _affine_functions
     from jaxanm.series import AffinePath
+
+    if mode == "exact":
+        series_module.EXACT_TERMS = 10**6
 
     lookahead = homotopy == "newton"
     with jaxanm.float64():
@@ -54,7 +64,7 @@ def measure(order: int, mode: str, homotopy: str, repeats: int, warm: int) -> di
         t0 = time.perf_counter()
         fns = _affine_functions(model.residual, x, args)
         def series():
-            path = AffinePath(fns, x, args, lookahead=lookahead)
+            path = AffinePath(fns, x, args, lookahead=lookahead, max_terms=order - 1)
             for c in cs:
                 path.next(c)
 
@@ -75,7 +85,7 @@ def measure(order: int, mode: str, homotopy: str, repeats: int, warm: int) -> di
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--orders", default="5,7,10,15,20")
-    ap.add_argument("--modes", default="truncated")
+    ap.add_argument("--modes", default="exact,ladder")
     ap.add_argument("--homotopies", default="convex,newton")
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--warm", type=int, default=3)
@@ -86,9 +96,13 @@ def main(argv=None) -> int:
         order, mode, homotopy = a.one.split(",")
         print(json.dumps(measure(int(order), mode, homotopy, a.repeats, a.warm)))
         return 0
+    from jaxanm.series import EXACT_TERMS
+
     rows = []
     for order in (int(p) for p in a.orders.split(",")):
         for mode in a.modes.split(","):
+            if mode == "exact" and order - 1 <= EXACT_TERMS and "ladder" in a.modes:
+                continue  # the same jets as the ladder's
             for homotopy in a.homotopies.split(","):
                 out = subprocess.run([sys.executable, __file__, "--one", f"{order},{mode},{homotopy}",
                                       "--repeats", str(a.repeats), "--warm", str(a.warm)],

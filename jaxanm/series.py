@@ -65,59 +65,107 @@ def taylor_coefficients(f: Callable, x0, terms: Sequence, *args) -> list:
     return [f0, *list(fs)]
 
 
+# Jets of up to this many terms are compiled for their exact length; longer ones are padded with
+# zero terms to the next size of a geometric ladder, so that a series of order p compiles
+# O(log p) jets beyond it instead of p (module docstring of AffineFunctions).
+EXACT_TERMS = 8
+LADDER_GROWTH = 1.5
+
+
+def jet_length(terms: int, max_terms: int | None = None) -> int:
+    """Number of terms the compiled jet for ``terms`` known terms has: ``terms`` itself up to
+    :data:`EXACT_TERMS`, else the next rung of the ladder 8, 12, 18, 27, ... (capped at
+    ``max_terms``, the longest jet the series will need, so the top rung wastes nothing)."""
+    if terms <= EXACT_TERMS:
+        return terms
+    length = EXACT_TERMS
+    while length < terms:
+        length = int(np.ceil(length * LADDER_GROWTH))
+    return max(terms, min(length, max_terms)) if max_terms is not None else length
+
+
 class AffinePath:
     """Taylor coefficients of ``f(x(a), *args)`` along ``x(a) = x0 + sum_k a^k c_k``, one order at
     a time, with the affine part of ``f`` applied outside ``jet`` (:mod:`jaxanm.affine`).
 
     The frontier values (stencil sums and the like, affine in x) have coefficients ``A c_k``:
-    one linear map (a ``jax.jvp`` of the affine part) per new ``c_k``, computed once and kept.
-    Only the non-affine rest is expanded by ``jet``, from the kept frontier coefficients,
-    truncated at the k terms known: one compiled jet per order, O(k^2) work at order k, so a
-    series of order p costs O(p^2) jet terms.  (Padding every order to p - 1 terms with zeros
-    would compile one jet for all orders but cost O(p^3) per series: 488 ms against 79 ms at
-    p = 20 on fsw_paper, docs/series_cost.md.)  :meth:`next` appends ``c_k`` and returns ``f_k``.
+    one linear map (a ``jax.jvp`` of the affine part) per new ``c_k``, computed once and kept
+    on the device, stacked per frontier value.  Only the non-affine rest is expanded by
+    ``jet``, from the kept frontier coefficients, truncated at the k terms known: O(k^2) work
+    at order k, so a series of order p costs O(p^2) jet terms.  (Padding every order to
+    p - 1 terms with zeros would cost O(p^3) per series: 488 ms against 79 ms at p = 20 on
+    fsw_paper, docs/series_cost.md.)  Beyond :data:`EXACT_TERMS` terms the jet is padded to
+    the next rung of a geometric ladder (:func:`jet_length`): a few compiled jets instead of
+    one per order, for at most ``LADDER_GROWTH^2`` times the work of an exact one.
+    :meth:`next` appends ``c_k`` and returns ``f_k``.
     ``f0``: the frontier values at ``x0`` when already known (from
     :attr:`AffineFunctions.residual_and_frontier`).  ``lookahead=True``: :meth:`next` returns
     ``f_{k+1}`` along the path with the provisional ``c_{k+1} = c_k`` instead of ``f_k`` (one
     more term of the same jet; the ANM's Newton homotopy, :class:`jaxanm.ANM`).
+    ``max_terms``: the most path coefficients :meth:`next` will be given (p - 1 for an ANM
+    series of order p), so that the top rung of the ladder is no longer than needed; None: no
+    cap.
     """
 
-    def __init__(self, functions: "AffineFunctions", x0, args: tuple, f0=None, lookahead: bool = False):
+    def __init__(self, functions: "AffineFunctions", x0, args: tuple, f0=None, lookahead: bool = False,
+                 max_terms: int | None = None):
         self._fn, self._x0, self._args = functions, x0, args
         self._lookahead = bool(lookahead)
+        self._max_length = None if max_terms is None else max_terms + self._lookahead
         self._f0 = functions.frontier(x0, *args) if f0 is None else f0
-        self._terms = []
+        self._stack = None  # frontier coefficients, one (length, *shape) array per frontier value
+        self._known = 0
 
     def next(self, c) -> np.ndarray:
         """Append the path coefficient ``c_k`` and return the coefficient ``f_k`` (or, with
         ``lookahead``, ``f_{k+1}`` for ``c_{k+1} = c_k``) as a host array."""
-        fk, new = self._fn.truncated[self._lookahead](self._x0, c, self._f0, self._terms, *self._args)
-        self._terms.append(new)
+        length = jet_length(self._known + 1 + self._lookahead, self._max_length)
+        if self._stack is None or self._stack[0].shape[0] < length:
+            self._stack = self._fn.grown(self._f0, self._stack, length)
+        fk, self._stack = self._fn.truncated[self._lookahead](
+            self._x0, c, self._f0, self._stack, np.int32(self._known), *self._args)
+        self._known += 1
         return np.asarray(fk)
 
 
 class AffineFunctions:
     """The compiled pieces of :class:`AffinePath` for one function and one argument layout
-    (``x0`` and ``args`` are examples: shapes and pytree structure matter, not values)."""
+    (``x0`` and ``args`` are examples: shapes and pytree structure matter, not values).
+
+    ``truncated[lookahead]`` is compiled once per jet length (:func:`jet_length`): the known
+    frontier coefficients come stacked in fixed-length arrays, the new one is written at a
+    traced position, and the coefficient wanted is read at a traced index, so every order
+    that falls on one rung of the ladder reuses one compilation.  A coefficient of order m
+    depends on the terms up to m only, so the zero (or stale) terms above it change nothing.
+    """
 
     def __init__(self, fun: Callable, x0, *args):
         from .affine import split_affine
 
         self.split = split = split_affine(fun, x0, *args)
 
-        def rest_coefficients(f0, terms, *args):
-            """``[rest]_1..[rest]_K`` from the frontier's ``f0`` and ``terms[k-1]`` (lists)."""
+        def rest_coefficients(f0, stack, *args):
+            """``[rest]_1..[rest]_L`` (stacked) from the frontier's ``f0`` and its stacked
+            coefficients (one ``(L, *shape)`` array per frontier value)."""
+            length = stack[0].shape[0]
             _, fs = jet.jet(lambda *F: split.rest(list(F), *args), tuple(f0),
-                            tuple(list(t) for t in zip(*terms)), factorial_scaled=False)
-            return fs
+                            tuple([s[m] for m in range(length)] for s in stack), factorial_scaled=False)
+            return jnp.stack([jnp.broadcast_to(f, split.out_shape) for f in fs])
 
         def new_term(x0, c, args):
             return jax.jvp(lambda y: split.linear(y, *args), (x0,), (c,))[1]
 
-        def truncated(lookahead, x0, c, f0, terms, *args):
+        def truncated(lookahead, x0, c, f0, stack, known, *args):
             new = new_term(x0, c, args)
-            fk = rest_coefficients(f0, [*terms, new] + [new] * lookahead, *args)[-1]
-            return jnp.broadcast_to(fk, split.out_shape), new
+            stack = [s.at[known].set(n) for s, n in zip(stack, new)]
+            terms = [s.at[known + 1].set(n) for s, n in zip(stack, new)] if lookahead else stack
+            return rest_coefficients(f0, terms, *args)[known + lookahead], stack
+
+        def grown(f0, stack, length):
+            zeros = [jnp.zeros((length,) + jnp.shape(f), jnp.result_type(f)) for f in f0]
+            if stack is None:
+                return zeros
+            return [z.at[:s.shape[0]].set(s) for z, s in zip(zeros, stack)]
 
         def residual_and_frontier(x, *args):
             frontier = split.linear(x, *args)
@@ -128,3 +176,4 @@ class AffineFunctions:
         self.residual_and_frontier = jax.jit(residual_and_frontier)
         # indexed by ``lookahead`` (AffinePath)
         self.truncated = {flag: jax.jit(functools.partial(truncated, flag)) for flag in (False, True)}
+        self.grown = jax.jit(grown, static_argnums=2)

@@ -72,9 +72,10 @@ class SeriesPath:
     starts from, in one call.
     """
 
-    def __init__(self, problem: "Problem", d_s, args: tuple, lookahead: bool = False):
+    def __init__(self, problem: "Problem", d_s, args: tuple, lookahead: bool = False,
+                 max_terms: int | None = None):
         self._problem, self._d_s, self._args = problem, d_s, args
-        self._lookahead = lookahead
+        self._lookahead, self._max_terms = lookahead, max_terms
         self._terms = []
         with problem.stats.timer("series"):
             self._fns = problem.affine_functions(d_s, args)
@@ -88,7 +89,7 @@ class SeriesPath:
         with P.stats.timer("series"):
             r, f0 = self._fns.residual_and_frontier(self._d_s, *self._args)
             self._path = AffinePath(self._fns, self._d_s, self._args, f0=f0,
-                                    lookahead=self._lookahead)
+                                    lookahead=self._lookahead, max_terms=self._max_terms)
             r = np.asarray(r)
         P.stats.residual_evaluations += 1
         return r
@@ -104,7 +105,7 @@ class SeriesPath:
         with P.stats.timer("series"):
             if self._path is None:
                 self._path = AffinePath(self._fns, self._d_s, self._args,
-                                        lookahead=self._lookahead)
+                                        lookahead=self._lookahead, max_terms=self._max_terms)
             r = self._path.next(c)
         P.stats.series_orders += 1
         return r
@@ -384,7 +385,8 @@ class _ANMStepper:
         while True:
             # the residual coefficient that order j needs depends on c_1 .. c_{j-1} only (and, for
             # the Newton homotopy, on the provisional c_j = c_{j-1}): each jet is truncated there
-            path = SeriesPath(P, d_s, (x_old, t, dt, params), lookahead=self.opts.homotopy == "newton")
+            path = SeriesPath(P, d_s, (x_old, t, dt, params), lookahead=self.opts.homotopy == "newton",
+                              max_terms=p - 1)
             r0 = path.start_residual() if r_next is None else r_next
             r_next = None
             r0_norm = float(np.max(np.abs(r0)))
