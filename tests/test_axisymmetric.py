@@ -182,12 +182,13 @@ def test_newtonian_temperature_rise_at_a_coarse_cloud():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue 15: at the paper's n the temperature rise does not converge at "
-                                       "affordable dr (the edge half cell's source q(R1) dr/2 against a 0.1 mm band)")
+@pytest.mark.xfail(strict=True, reason="issue 15: at the paper's n the heat rows store more than the discrete "
+                                       "flow dissipates at fine dr (1.06 beta int P_h dt at K = 16, 0.87 at K = 8), which "
+                                       "offsets the flow's falling over-dissipation: the rise error stalls near 14 %")
 def test_paper_exponent_temperature_rise_converges_to_the_oracle():
     """n = 0.1324 over 10 ms at K = 8 and 16 (about 2 min).  Measured 0.146 and 0.127: the
-    stored heat is 14 % above the oracle's at both (docs/notes/spatial_accuracy.md), while
-    the dissipated power of the flow falls from 1.33 to 1.09 P.  A first-order rate would
+    stored heat is 14 % above the oracle's at both, while the dissipated power of the flow
+    falls from 1.33 to 1.09 P (docs/notes/spatial_accuracy.md).  A first-order rate would
     halve the error; when a fix makes it so, this test passes and strict xfail says so."""
     err = [_rise_error(K, 0.1324, 0.01) for K in (8, 16)]
     assert err[1] <= err[0] / 2, err
