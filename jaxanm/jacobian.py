@@ -21,6 +21,15 @@ import scipy.sparse
 from ._x64 import entry_point
 
 _COLOR_BUCKET = 16  # colours are padded to a multiple of this: fewer recompiles
+# Device memory one seeded jvp of a meshless residual holds, per nonzero of the Jacobian: its
+# stencil intermediates are (N, m) arrays, about nnz / fields entries each, several alive at
+# once.  Measured on fsw_tracers at dr/4 (13,173 points, nnz 3.1e6): 38 MB per colour, i.e.
+# 12 B per nonzero; 16 B leaves room for residuals with more intermediates.
+_BYTES_PER_NONZERO_AND_COLOR = 16
+# Colours are seeded together up to this much memory, then in batches (lax.map): the
+# fsw_paper Jacobian (144 padded colours, 0.2e6 nonzeros: 0.5 GB) stays one vmap, a cloud 4x
+# finer per direction no longer needs 6.6 GB.
+JACOBIAN_MEMORY_BYTES = 512 * 2**20
 
 
 def color_columns(pattern) -> np.ndarray:
@@ -56,14 +65,33 @@ def dense_jacobian_function(residual):
 
 
 @functools.lru_cache(maxsize=64)
-def compressed_jacobian_function(residual):
-    """Jitted ``(x, seeds, x_old, t, dt, params) -> (n_colors, n)``: rows are ``J @ seed``."""
+def compressed_jacobian_function(residual, batch: int | None = None):
+    """Jitted ``(x, seeds, x_old, t, dt, params) -> (n_colors, n)``: rows are ``J @ seed``.
+
+    ``batch``: seed at most this many colours at once (``lax.map`` over batches, which bounds
+    the memory of the stencil intermediates); None: all colours in one ``vmap``.
+    """
 
     def compressed(x, seeds, x_old, t, dt, params):
         f = _step_function(residual, x_old, t, dt, params)
-        return jax.vmap(lambda s: jax.jvp(f, (x,), (s,))[1])(seeds)
+        column = lambda s: jax.jvp(f, (x,), (s,))[1]  # noqa: E731
+        if batch is None or batch >= seeds.shape[0]:
+            return jax.vmap(column)(seeds)
+        return jax.lax.map(column, seeds, batch_size=batch)
 
     return jax.jit(compressed)
+
+
+def color_batch(nnz: int, n_colors: int, budget: int | None = None) -> int | None:
+    """How many colours to seed at once so that one batch holds at most about ``budget`` bytes
+    of intermediates: a power of two (so that a Lagrangian pattern whose nonzeros drift keeps
+    its compiled batch), at least one colour; None when all ``n_colors`` fit.  ``budget``:
+    :data:`JACOBIAN_MEMORY_BYTES` by default."""
+    budget = JACOBIAN_MEMORY_BYTES if budget is None else budget
+    fit = budget // max(1, _BYTES_PER_NONZERO_AND_COLOR * nnz)
+    if fit >= n_colors:
+        return None
+    return 1 << max(0, int(fit).bit_length() - 1)
 
 
 class SparseJacobian:
@@ -71,11 +99,12 @@ class SparseJacobian:
 
     ``pattern`` is a scipy sparse (n, n) matrix whose nonzeros include every structural
     nonzero of the Jacobian (a superset is safe; a missing entry would be silently lost,
-    so :func:`detect_sparsity` or the model's own pattern must be complete).
+    so :func:`detect_sparsity` or the model's own pattern must be complete).  Large patterns
+    are seeded in batches of :attr:`batch` colours (:func:`color_batch`).
     """
 
     def __init__(self, residual, pattern):
-        self._fn = compressed_jacobian_function(residual)
+        self._residual = residual
         self.set_pattern(pattern)
 
     def set_pattern(self, pattern) -> None:
@@ -94,6 +123,8 @@ class SparseJacobian:
         seeds = np.zeros((padded, n))
         seeds[self.colors, np.arange(n)] = 1.0
         self._seeds = seeds
+        self.batch = color_batch(csc.nnz, padded)
+        self._fn = compressed_jacobian_function(self._residual, self.batch)
         self._indptr = csc.indptr.copy()
         self._rows = csc.indices.copy()
         self._cols = np.repeat(np.arange(n), np.diff(csc.indptr))

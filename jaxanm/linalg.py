@@ -30,15 +30,29 @@ from .stats import Stats
 # Cuthill-McKee renumbering of the points gains at most 1-2 ms more (docs/lu_orderings.md,
 # medians back to back, load 1-2.4).  The MLS value matrix of the Lagrangian refit
 # factorises faster too (0.93e5 non-zeros against 1.21e5).  An exactly singular factor raises.
+#
+# On finer clouds the symmetric mode loses: the eliminated diagonals fall below the threshold
+# and every pivot taken off the diagonal spoils the symmetric ordering.  fsw_tracers near rest
+# (docs/notes/sparse_lu_at_scale.md), non-zeros of L + U, symmetric mode against MMD_ATA:
+# 1.27e6 / 1.22e6 at dr (2643 unknowns), 15.8e6 / 8.7e6 at dr/2 (10 107), 246e6 / 58e6 and
+# 918 s / 9 s at dr/4 (39 519).  So the symmetric mode is used up to SYMMETRIC_MAX_UNKNOWNS,
+# between the sizes where it was measured to win and to lose, and MMD_ATA with partial
+# pivoting above.
+SYMMETRIC_MAX_UNKNOWNS = 5000
 PERMC_SPEC = "MMD_AT_PLUS_A"
 DIAG_PIVOT_THRESH = 0.1
 SUPERLU_OPTIONS = {"SymmetricMode": True}
+LARGE_PERMC_SPEC = "MMD_ATA"
 
 
 def sparse_lu(matrix) -> scipy.sparse.linalg.SuperLU:
-    """SuperLU factors of a square sparse matrix: ordering :data:`PERMC_SPEC`, threshold
-    :data:`DIAG_PIVOT_THRESH`, options :data:`SUPERLU_OPTIONS`."""
-    return scipy.sparse.linalg.splu(scipy.sparse.csc_matrix(matrix), permc_spec=PERMC_SPEC,
+    """SuperLU factors of a square sparse matrix: up to :data:`SYMMETRIC_MAX_UNKNOWNS`
+    unknowns, ordering :data:`PERMC_SPEC` with threshold :data:`DIAG_PIVOT_THRESH` and options
+    :data:`SUPERLU_OPTIONS`; above, :data:`LARGE_PERMC_SPEC` with partial pivoting."""
+    matrix = scipy.sparse.csc_matrix(matrix)
+    if matrix.shape[0] > SYMMETRIC_MAX_UNKNOWNS:
+        return scipy.sparse.linalg.splu(matrix, permc_spec=LARGE_PERMC_SPEC)
+    return scipy.sparse.linalg.splu(matrix, permc_spec=PERMC_SPEC,
                                     diag_pivot_thresh=DIAG_PIVOT_THRESH, options=dict(SUPERLU_OPTIONS))
 
 

@@ -193,6 +193,31 @@ def test_sparse_coloured_jacobian_equals_dense():
     np.testing.assert_allclose(sparse_detected.toarray(), dense, rtol=0, atol=1e-12 * np.abs(dense).max())
 
 
+def test_colours_seeded_in_batches_give_the_same_jacobian(monkeypatch):
+    # a memory budget below one batch of all colours: lax.map over batches of a power of two
+    # (here 4 colours of the 16 padded), the same jvps as one vmap
+    from jaxanm import jacobian
+
+    residual, x, params, pattern = _random_stencil_problem()
+    with jaxanm.float64():
+        whole = jaxanm.SparseJacobian(residual, pattern)
+        monkeypatch.setattr(jacobian, "JACOBIAN_MEMORY_BYTES", 5 * 16 * pattern.nnz)
+        batched = jacobian.SparseJacobian(residual, pattern)
+        assert whole.batch is None and batched.batch == 4
+        a, b = whole(x, x, 0.0, 0.1, params), batched(x, x, 0.0, 0.1, params)
+    # the same arithmetic per colour; vmap and the batched loop may vectorise it differently
+    np.testing.assert_allclose(b.toarray(), a.toarray(), rtol=0, atol=1e-14 * np.abs(a).max())
+
+
+def test_colour_batches_are_powers_of_two_within_the_budget():
+    from jaxanm.jacobian import color_batch
+
+    assert color_batch(nnz=1000, n_colors=32, budget=16 * 1000 * 32) is None  # all fit
+    assert color_batch(nnz=1000, n_colors=32, budget=16 * 1000 * 31) == 16
+    assert color_batch(nnz=1000, n_colors=32, budget=16 * 1000 * 5) == 4
+    assert color_batch(nnz=1000, n_colors=32, budget=10) == 1
+
+
 def test_colouring_is_valid_and_tight_on_a_tridiagonal_pattern():
     n = 50
     tri = scipy.sparse.diags([1.0, 1.0, 1.0], [-1, 0, 1], shape=(n, n))
@@ -284,3 +309,21 @@ def test_after_step_remap_changes_the_discretisation_without_changing_the_soluti
     with pytest.raises(jaxanm.InputError, match="Remap state of shape"):
         jaxanm.integrate(residual0, x0, params0, after_step=lambda t, x, p: jaxanm.Remap(p, x[:-1]),
                          **{**kw, "t1": 0.02})
+
+
+@pytest.mark.parametrize("limit", [10**6, 10], ids=["symmetric-mode", "mmd-ata"])
+def test_sparse_lu_solves_in_both_orderings(limit, monkeypatch):
+    # the symmetric-mode ordering up to SYMMETRIC_MAX_UNKNOWNS unknowns, MMD_ATA with partial
+    # pivoting above: both must solve a non-symmetric stencil matrix to backward-stable accuracy
+    from jaxanm import linalg
+
+    monkeypatch.setattr(linalg, "SYMMETRIC_MAX_UNKNOWNS", limit)
+    n = 60
+    rng = np.random.default_rng(5)
+    a = scipy.sparse.random(n, n, density=0.08, random_state=rng) + 4.0 * scipy.sparse.identity(n)
+    b = rng.standard_normal(n)
+    x = linalg.sparse_lu(a).solve(b)
+    # LU with pivoting on a diagonally dominant matrix (growth factor ~1) is backward stable:
+    # residual ~ n eps |A|_inf |x|_inf, with a factor 10 for the constant of the bound
+    norm_a = abs(a).sum(axis=1).max()
+    assert np.abs(a @ x - b).max() <= 10 * n * np.finfo(float).eps * norm_a * np.abs(x).max()
