@@ -117,8 +117,8 @@ def graded_edges(R1: float, R2: float, tool_cells: int = 40, plate_cells: int = 
     """Cell edges on [0, R2] (or [R1, R2] without the tool) graded geometrically towards R1.
 
     ``tool_cells`` cells on [0, R1] and ``plate_cells`` on [R1, R2], each ``ratio`` times wider
-    than its neighbour nearer R1 (the defaults put the first plate cell at 2.6 um, 1/40 of the
-    paper's shear band); ``refine`` splits every cell into that many equal parts (the same
+    than its neighbour nearer R1 (the defaults put the first plate cell at 1.6 um, 1/60 of the
+    paper's 0.1 mm shear band, the widest at 0.17 mm); ``refine`` splits every cell into that many equal parts (the same
     mesh mapping: errors fall as ``refine^-2``).  R1 is always an edge.
     """
     plate = R1 + np.concatenate([[0.0], np.cumsum(_geometric(R2 - R1, plate_cells, plate_ratio))])
