@@ -186,8 +186,9 @@ def label(row: dict) -> str:
     return ", ".join(parts)
 
 
-def markdown(rows: list, meta: dict) -> str:
-    """The table of every row, sorted by method then error."""
+def markdown(rows: list, meta: dict, previous: dict | None = None) -> str:
+    """The table of every row, sorted by method then error; with ``previous`` (``{(method,
+    settings): (wall, load)}`` of an earlier invocation), its wall time and load beside each row."""
     e = meta["ref_error"]
     lines = [f"Scene `{meta['scene']}` over [0, {meta['t_end']:g}] s, probes compared at t = {', '.join(f'{t:g}' for t in meta['times'])} s, "
              f"fields at t_end.  Reference: Richardson from implicit Euler at dt = {2 * meta['dt_ref']:g}, {meta['dt_ref']:g}, "
@@ -195,14 +196,27 @@ def markdown(rows: list, meta: dict) -> str:
              f"{e['err_T_probes']:.1e}, V at the probes {e['err_V_probes']:.1e}, T field {e['err_T_fields']:.1e}, "
              f"V field {e['err_V_fields']:.1e}.  {meta['date']}, {meta['cpus']} cores shared with other jobs.", "",
              "| method | settings | steps | factorisations | err T probes | err V probes | err T field | err V field | "
-             "error (max) | wall (s) | load before-after |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "error (max) | wall (s) | load before-after |" + (" earlier run: wall (s), load |" if previous else ""),
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |" + (" --- |" if previous else "")]
     for r in sorted(rows, key=lambda r: (r["method"], -r["error"])):
         rep = " (repeat)" if r.get("repeat") else ""
         lines.append(f"| {r['method']}{rep} | {label(r)} | {r['steps']} | {r['factorizations']} | {r['err_T_probes']:.1e} | "
                      f"{r['err_V_probes']:.1e} | {r['err_T_fields']:.1e} | {r['err_V_fields']:.1e} | {r['error']:.1e} | "
-                     f"{r['wall_s']:.1f} | {r['load'][0]:.1f}-{r['load'][1]:.1f} |")
+                     f"{r['wall_s']:.1f} | {r['load'][0]:.1f}-{r['load'][1]:.1f} |"
+                     + (_earlier(previous, r) if previous else ""))
     return "\n".join(lines) + "\n"
+
+
+def _earlier(previous: dict, row: dict) -> str:
+    """The earlier invocation's wall time and load of the same configuration, as a table cell."""
+    hit = previous.get((row["method"], label(row), bool(row.get("repeat"))))
+    return f" {hit[0]:.1f} ({hit[1]:.1f}) |" if hit else " - |"
+
+
+def load_previous(path) -> dict:
+    """``{(method, settings, repeat): (wall, load)}`` from an earlier invocation's JSON."""
+    rows = json.loads(pathlib.Path(path).read_text())["rows"]
+    return {(r["method"], label(r), bool(r.get("repeat"))): (r["wall_s"], r["load"][0]) for r in rows if "failed" not in r}
 
 
 def cheapest(rows: list, levels=(1e-2, 1e-3, 1e-4, 1e-5)) -> list:
@@ -266,6 +280,7 @@ def main(argv=None) -> None:
     ap.add_argument("--ida-rtols", default="1e-3,1e-4,1e-5,1e-6,1e-7")
     ap.add_argument("--repeat", type=int, default=4, help="rerun this many of the fastest rows (load noise)")
     ap.add_argument("--reference-only", action="store_true")
+    ap.add_argument("--previous", default=None, help="JSON of an earlier invocation: its wall times beside this one's")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     times = ([float(t) for t in a.times.split(",")] if a.times else [a.t_end * k / 10 for k in range(1, 11)])
@@ -304,7 +319,10 @@ def main(argv=None) -> None:
     meta = {"scene": a.scene, "t_end": a.t_end, "times": times, "dt_ref": a.dt_ref, "ref_tol": a.ref_tol,
             "ref_error": ref_err, "ref_wall_s": ref_all["wall_s"], "date": datetime.date.today().isoformat(),
             "cpus": os.cpu_count(), "argv": sys.argv[1:], "front_wall_s": time.perf_counter() - started}
-    text = markdown(ok, meta)
+    previous = load_previous(a.previous) if a.previous else None
+    if previous:
+        meta["previous"] = {f"{k[0]} | {k[1]}{' (repeat)' if k[2] else ''}": v for k, v in previous.items()}
+    text = markdown(ok, meta, previous)
     failed = [r for r in rows if "failed" in r]
     if failed:
         text += "\nFailed: " + "; ".join(f"{r['method']} {r['overrides']}: {r['failed']}" for r in failed) + "\n"
