@@ -121,9 +121,11 @@ class AffinePath:
         ``lookahead``, ``f_{k+1}`` for ``c_{k+1} = c_k``) as a host array."""
         length = jet_length(self._known + 1 + self._lookahead, self._max_length)
         if self._stack is None or self._stack[0].shape[0] < length:
-            self._stack = self._fn.grown(self._f0, self._stack, length)
+            # room for the whole series when its length is known, else for twice this jet
+            capacity = max(length, self._max_length or 2 * length)
+            self._stack = self._fn.grown(self._f0, self._stack, capacity)
         fk, self._stack = self._fn.truncated[self._lookahead](
-            self._x0, c, self._f0, self._stack, np.int32(self._known), *self._args)
+            length, self._x0, c, self._f0, self._stack, np.int32(self._known), *self._args)
         self._known += 1
         return np.asarray(fk)
 
@@ -132,10 +134,11 @@ class AffineFunctions:
     """The compiled pieces of :class:`AffinePath` for one function and one argument layout
     (``x0`` and ``args`` are examples: shapes and pytree structure matter, not values).
 
-    ``truncated[lookahead]`` is compiled once per jet length (:func:`jet_length`): the known
-    frontier coefficients come stacked in fixed-length arrays, the new one is written at a
-    traced position, and the coefficient wanted is read at a traced index, so every order
-    that falls on one rung of the ladder reuses one compilation.  A coefficient of order m
+    ``truncated[lookahead]`` is compiled once per jet length (:func:`jet_length`, a static
+    argument): the known frontier coefficients come stacked in arrays allocated once per
+    series, the new one is written at a traced position, the jet reads the first ``length``
+    of them, and the coefficient wanted is read at a traced index, so every order that falls
+    on one rung of the ladder reuses one compilation.  A coefficient of order m
     depends on the terms up to m only, so the zero (or stale) terms above it change nothing.
     """
 
@@ -144,10 +147,9 @@ class AffineFunctions:
 
         self.split = split = split_affine(fun, x0, *args)
 
-        def rest_coefficients(f0, stack, *args):
-            """``[rest]_1..[rest]_L`` (stacked) from the frontier's ``f0`` and its stacked
-            coefficients (one ``(L, *shape)`` array per frontier value)."""
-            length = stack[0].shape[0]
+        def rest_coefficients(length, f0, stack, *args):
+            """``[rest]_1..[rest]_length`` (stacked) from the frontier's ``f0`` and its stacked
+            coefficients (one ``(capacity, *shape)`` array per frontier value)."""
             _, fs = jet.jet(lambda *F: split.rest(list(F), *args), tuple(f0),
                             tuple([s[m] for m in range(length)] for s in stack), factorial_scaled=False)
             return jnp.stack([jnp.broadcast_to(f, split.out_shape) for f in fs])
@@ -155,11 +157,11 @@ class AffineFunctions:
         def new_term(x0, c, args):
             return jax.jvp(lambda y: split.linear(y, *args), (x0,), (c,))[1]
 
-        def truncated(lookahead, x0, c, f0, stack, known, *args):
+        def truncated(lookahead, length, x0, c, f0, stack, known, *args):
             new = new_term(x0, c, args)
             stack = [s.at[known].set(n) for s, n in zip(stack, new)]
             terms = [s.at[known + 1].set(n) for s, n in zip(stack, new)] if lookahead else stack
-            return rest_coefficients(f0, terms, *args)[known + lookahead], stack
+            return rest_coefficients(length, f0, terms, *args)[known + lookahead], stack
 
         def grown(f0, stack, length):
             zeros = [jnp.zeros((length,) + jnp.shape(f), jnp.result_type(f)) for f in f0]
@@ -175,5 +177,6 @@ class AffineFunctions:
         # f(x0) and the frontier at x0 in one call: a series start needs both
         self.residual_and_frontier = jax.jit(residual_and_frontier)
         # indexed by ``lookahead`` (AffinePath)
-        self.truncated = {flag: jax.jit(functools.partial(truncated, flag)) for flag in (False, True)}
+        self.truncated = {flag: jax.jit(functools.partial(truncated, flag), static_argnums=0)
+                          for flag in (False, True)}
         self.grown = jax.jit(grown, static_argnums=2)
