@@ -28,7 +28,7 @@ reaction-diffusion ODE, and the FSW rows record the measured structure of M inst
 Usage (one command per figure/table; see docs/accuracy_cost.md)::
 
     python benchmarks/accuracy_cost.py --small            # ~35 min on 2 cores under load 10-13
-    python benchmarks/accuracy_cost.py --config paper     # one accuracy point at the paper's dr (~15 min)
+    python benchmarks/accuracy_cost.py --config paper     # one accuracy point at the paper's dr (~15 min), docs/accuracy_cost_paper_dr.*
     python benchmarks/accuracy_cost.py                    # full sweep (hours; see docs)
     python benchmarks/accuracy_cost.py --plot-only        # redraw docs/accuracy_cost.png from the json
 """
@@ -620,8 +620,9 @@ def main(argv=None) -> None:
         print(json.dumps(res, default=float))
         return
     config = args.config or ("small" if args.small else "full")
-    out = pathlib.Path(args.out) if args.out else DOCS / ("accuracy_cost.json" if config == "small"
-                                                          else f"accuracy_cost_{config}.json")
+    # docs/accuracy_cost_paper.* is the fsw_tracers front of benchmarks/accuracy_cost_paper.py
+    default_name = {"small": "accuracy_cost.json", "paper": "accuracy_cost_paper_dr.json"}
+    out = pathlib.Path(args.out) if args.out else DOCS / default_name.get(config, f"accuracy_cost_{config}.json")
     if not args.plot_only:
         problems = args.problems.split(",") if args.problems else list(CONFIGS[config]["problems"])
         sweep(config, problems, out)
