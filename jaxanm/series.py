@@ -67,7 +67,7 @@ def taylor_coefficients(f: Callable, x0, terms: Sequence, *args) -> list:
 
 # Jets of up to this many terms are compiled for their exact length; longer ones are padded with
 # zero terms to the next size of a geometric ladder, so that a series of order p compiles
-# O(log p) jets beyond it instead of p (module docstring of AffineFunctions).
+# O(log p) jets beyond it instead of p (docstring of AffineFunctions).
 EXACT_TERMS = 8
 LADDER_GROWTH = 1.5
 

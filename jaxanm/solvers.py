@@ -81,6 +81,11 @@ class SeriesPath:
             self._fns = problem.affine_functions(d_s, args)
         self._path = None
 
+    def _affine_path(self, f0=None) -> AffinePath:
+        """The series along this path (``f0``: the frontier at ``d_s`` when already known)."""
+        return AffinePath(self._fns, self._d_s, self._args, f0=f0, lookahead=self._lookahead,
+                          max_terms=self._max_terms)
+
     def start_residual(self) -> np.ndarray:
         """``R(d_s)`` on the host (counted as a residual evaluation)."""
         P = self._problem
@@ -88,8 +93,7 @@ class SeriesPath:
             return P.residual(self._d_s, *self._args)
         with P.stats.timer("series"):
             r, f0 = self._fns.residual_and_frontier(self._d_s, *self._args)
-            self._path = AffinePath(self._fns, self._d_s, self._args, f0=f0,
-                                    lookahead=self._lookahead, max_terms=self._max_terms)
+            self._path = self._affine_path(f0)
             r = np.asarray(r)
         P.stats.residual_evaluations += 1
         return r
@@ -104,8 +108,7 @@ class SeriesPath:
             return P.series(self._d_s, terms, *self._args)[-1]
         with P.stats.timer("series"):
             if self._path is None:
-                self._path = AffinePath(self._fns, self._d_s, self._args,
-                                        lookahead=self._lookahead, max_terms=self._max_terms)
+                self._path = self._affine_path()
             r = self._path.next(c)
         P.stats.series_orders += 1
         return r
