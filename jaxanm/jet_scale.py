@@ -31,6 +31,8 @@ scale_p = Primitive("jaxanm_scale")
 def scale(x, c, op: str):
     """``x * c`` (``op="mul"``) or ``x / c`` (``op="div"``), with ``c`` a constant of the
     expansion: jet propagates it as linear in ``x``."""
+    if op not in _OPS:
+        raise ValueError(f"scale: op must be one of {sorted(_OPS)}, got {op!r}")
     return scale_p.bind(x, c, op=op)
 
 

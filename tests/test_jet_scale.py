@@ -50,3 +50,8 @@ def test_scale_has_the_derivatives_of_the_product(op):
             want = jax.jacfwd(lambda x, c: ref_op(jnp.sin(x), c), argnums)(X0, C)
             # the same formula evaluated in another order: round-off of the entries
             np.testing.assert_allclose(got, want, rtol=1e-14, atol=0)
+
+
+def test_an_unknown_operation_is_named():
+    with pytest.raises(ValueError, match="op must be one of"):
+        scale(X0, C, "add")
