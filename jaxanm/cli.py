@@ -46,6 +46,7 @@ cannot be written or a sweep task failed, 130 when interrupted.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 import time
@@ -331,8 +332,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
     print(f"{scene.name} ({scene.solver.kind}): t = {float(result.t[-1]):.6g} s, "
           f"{stats.time_steps} steps, {stats.factorizations} factorizations, "
           f"{stats.wall_time_s:.1f} s wall{rezonings}")
+    for line in _accuracy_lines(paths):
+        print(line)
     print(f"{len(paths)} files written to {out_dir}")
     return 0
+
+
+def _accuracy_lines(paths) -> list[str]:
+    """The spatial-accuracy lines of the run's ``summary.json`` (none if it was not written)."""
+    from jaxanm.fsw.output import spatial_accuracy_lines
+
+    summary = next((p for p in paths if Path(p).name == "summary.json"), None)
+    if summary is None:
+        return []
+    return spatial_accuracy_lines(json.loads(Path(summary).read_text(encoding="utf-8")).get("spatial_accuracy"))
 
 
 def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> str:

@@ -192,3 +192,65 @@ def test_paper_exponent_temperature_rise_converges_to_the_oracle():
     halve the error; when a fix makes it so, this test passes and strict xfail says so."""
     err = [_rise_error(K, 0.1324, 0.01) for K in (8, 16)]
     assert err[1] <= err[0] / 2, err
+
+
+# ------------------------------------------------------------------ (c) what a run's summary reports
+
+def test_shear_band_width_matches_the_power_law_closed_form():
+    """eps0 = 1e-14 (no regularisation, see the first test): v/r = omega (r^-a - R2^-a) /
+    (R1^-a - R2^-a), a = 2/n, falls to omega/e at r^-a = R2^-a + (R1^-a - R2^-a)/e.  The
+    oracle's v is within 3e-5 omega R1 (first test); near R1, d(v/(omega r))/dr ~ a / (e R1),
+    so the width errs by ~3e-5 e R1 / a, 1e-4 of the width ~R1/a: 1e-3 leaves a factor 10."""
+    for n in (1.0, 0.1324):
+        scene = Scene(effects=("viscous",), material=Material(n=n, eps0=1e-14))
+        g, a = scene.geometry, 2.0 / n
+        exact = (g.R2 ** -a + (g.R1 ** -a - g.R2 ** -a) / math.e) ** (-1.0 / a) - g.R1
+        assert abs(ax.shear_band_width(scene) / exact - 1) < 1e-3, (n, ax.shear_band_width(scene), exact)
+
+
+def test_summary_reports_band_resolution_and_rise_error(tmp_path):
+    """summary.json's ``spatial_accuracy`` and the command-line lines, on results whose error is
+    known: the converged oracle's own temperatures at fsw_tracers' points (error: the coarse
+    reference's, < 3e-3 K of a ~25 K rise, so rel. L2 < 1e-3), then that rise made 10 % too
+    high everywhere (rel. L2 and mean ratio exactly 0.1 and 1.1 of the reference's, within its
+    1e-3).  The band: fsw_paper's n R1 / 2-like width over its ring spacing dr = 0.375 mm,
+    0.10 mm by the closed form above (eps0 = 0.1 widens it by 1 %), 0.27-0.28 points."""
+    import json
+    import types
+
+    from jaxanm.fsw import output
+    from jaxanm.fsw.geometry import build_cloud
+
+    scene = load_scene("fsw_tracers").with_overrides({"time.t_end": "0.05"})
+    points = build_cloud(scene.geometry).points
+    true = ax.solve(scene, [0.05]).temperature(np.hypot(*points.T), 0)
+    T0 = scene.thermal.T0
+    for factor in (1.0, 1.1):
+        res = types.SimpleNamespace(scene=scene, t=np.array([0.0, 0.05]), points=np.stack([points, points]),
+                                    T=np.stack([np.full(len(points), T0), T0 + factor * (true - T0)]))
+        block = output.spatial_accuracy(res)
+        err = block["rise_error"]
+        assert err["t"] == 0.05
+        assert abs(err["rel_l2"] - (factor - 1)) < 1e-3, err
+        assert abs(err["mean_ratio"] - factor) < 1e-3, err
+    assert block["edge_spacing_m"] == pytest.approx(scene.geometry.dr, rel=1e-12)  # 0.375 mm divides R2 - R1
+    assert 0.27 < block["shear_band_points"] < 0.28, block
+    assert block["shear_band_width_m"] == pytest.approx(block["shear_band_points"] * scene.geometry.dr, rel=1e-12)
+    lines = output.spatial_accuracy_lines(block)
+    assert "0.28 points across" in lines[0] and "% rel. L2 error, mean rise 1.1 x" in lines[1], lines
+    # through write_summary (JSON round trip); a result without a Scene reports null
+    from test_output import fake_result
+
+    fake = fake_result()
+    path = output.write_summary(fake, tmp_path)
+    assert json.loads(path.read_text())["spatial_accuracy"] is None
+    fake.scene = scene.with_overrides({"effects": "viscous"})
+    summary = json.loads(output.write_summary(fake, tmp_path).read_text())
+    assert summary["spatial_accuracy"]["shear_band_points"] == pytest.approx(block["shear_band_points"], rel=1e-12)
+    assert "rise_error" not in summary["spatial_accuracy"]  # isothermal: no rise to compare
+    # the command line prints the same lines from the written summary.json (jaxanm run)
+    from jaxanm import cli
+
+    assert cli._accuracy_lines([tmp_path / "fields.npz", tmp_path / "summary.json"]) == \
+        output.spatial_accuracy_lines(summary["spatial_accuracy"])
+    assert cli._accuracy_lines([]) == []

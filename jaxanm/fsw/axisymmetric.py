@@ -60,7 +60,7 @@ import scipy.sparse.linalg
 from .scene import Scene
 
 __all__ = ["AxisymmetricSolution", "couette_exact", "couette_shear", "graded_edges",
-           "radial_finite_volumes", "solve"]
+           "radial_finite_volumes", "rise_error", "shear_band_width", "solve"]
 
 
 def couette_exact(r, R1, R2, omega, n):
@@ -413,3 +413,64 @@ def _fixed_point(lu, rhs0, sources, guess, tol: float, max_iter: int = 100):
         T = T_new
     raise RuntimeError("axisymmetric: the source's fixed-point iteration did not converge "
                        f"(last change {np.max(np.abs(T_new - T)):.3g} K); use a smaller dt")
+
+
+def shear_band_width(scene: Scene) -> float:
+    """Width (m) of the shear band at the tool edge: how far from R1 the angular velocity
+    ``v / r`` of the plate falls to ``omega / e``.
+
+    From the isothermal (T0) Couette flow of the scene's regularised power law (its n, eps0,
+    omega, R1, R2; K and T0 cancel), solved as :func:`solve` does (the midpoint rule on the
+    graded mesh, second order, ``v`` within 3e-5 omega R1).  Unregularised, ``v / r`` falls
+    as ``r^(-2/n)``: the width is about ``n R1 / 2`` (0.10 mm for fsw_paper, 0.27 of its dr),
+    and the band holds 1 - 1/e of the velocity drop and most of the dissipation
+    (``q ~ r^(-2 - 2/n)``).  A hotter plate (softening) shears in about the same band.
+    """
+    iso = scene.with_overrides({"effects": "viscous"})
+    sol = solve(iso, [0.0])
+    r = sol.plate_edges
+    w = sol.v_faces[0] / (scene.tool.omega * r)  # 1 at R1, decreasing to 0 at R2
+    j = int(np.argmax(w <= math.exp(-1.0)))
+    # linear in r between the two edges around the crossing (the first cells are < 1 um)
+    t = (w[j - 1] - math.exp(-1.0)) / (w[j - 1] - w[j])
+    return float(r[j - 1] + t * (r[j] - r[j - 1]) - scene.geometry.R1)
+
+
+def rise_error(result, steps_per_ms: int = 1) -> dict | None:
+    """The temperature rise of a run against this module's solution, at the last saved time.
+
+    ``result`` is a :class:`jaxanm.fsw.simulate.FSWResult` (``scene``, ``t``, ``points``, ``T``)
+    of a scene with ``conduction`` (None otherwise, or at t = 0, or when the continuum's rise
+    is zero).  The reference is :func:`solve` on its default mesh with ``refine=1`` and about
+    ``steps_per_ms`` steps a millisecond (at least 10 in all): within 3e-3 K of the converged
+    solution on fsw_paper's physics to 0.7 s (measured against ``refine=2``, dt = 1e-4; 0.7 s
+    of solve).  Every FSW scene is axisymmetric (a disc round the turning tool, uniform
+    initial state), so this is the run's error, the solution's own aside.
+
+    Returns ``{"t", "rel_l2", "mean_ratio", "max_abs_K"}``: the relative L2 error of
+    ``T - T0`` over the points, the run's mean rise over the reference's and the largest
+    error (K).  If the solve's fixed point fails at that step (a scene heating much faster
+    than fsw_paper) it is repeated with the scene's own time step.
+    """
+    scene = result.scene
+    if not scene.has("conduction"):
+        return None
+    t = float(np.asarray(result.t, dtype=np.float64)[-1])
+    if not t > 0:
+        return None
+    steps = max(10, math.ceil(t * 1e3 * steps_per_ms))
+    try:
+        ref = solve(scene, [t], refine=1, dt=t / steps)
+    except RuntimeError:  # the source's fixed point: smaller steps
+        steps = max(steps, math.ceil(t / scene.time.dt - 1e-9))
+        ref = solve(scene, [t], refine=1, dt=t / steps)
+    T0 = scene.thermal.T0
+    r = np.hypot(*np.asarray(result.points[-1], dtype=np.float64).T)
+    rise = ref.temperature(r, 0) - T0
+    run_rise = np.asarray(result.T[-1], dtype=np.float64) - T0
+    norm = float(np.linalg.norm(rise))
+    if not norm > 0:
+        return None
+    return {"t": t, "rel_l2": float(np.linalg.norm(run_rise - rise)) / norm,
+            "mean_ratio": float(np.mean(run_rise) / np.mean(rise)),
+            "max_abs_K": float(np.max(np.abs(run_rise - rise)))}

@@ -28,7 +28,7 @@ from .. import mls
 from .._x64 import entry_point
 from .scene import Geometry
 
-__all__ = ["Cloud", "build_cloud", "build_stencils", "evaluate_stencils", "neighbour_list",
+__all__ = ["Cloud", "build_cloud", "build_stencils", "edge_spacing", "evaluate_stencils", "neighbour_list",
            "TOOL", "TOOL_EDGE", "PLATE_EDGE", "PLATE", "RING"]
 
 TOOL, TOOL_EDGE, PLATE_EDGE, PLATE, RING = range(5)
@@ -90,6 +90,15 @@ def _grid_interior(g: Geometry) -> tuple[np.ndarray, np.ndarray]:
     tool = xy[r < g.R1 - 0.5 * g.dr]
     plate = xy[(r > g.R1 + 0.5 * g.dr) & (r < g.R2 - 0.5 * g.dr)]
     return tool, plate
+
+
+def edge_spacing(g: Geometry) -> float:
+    """Radial point spacing (m) on the plate side of the tool edge, what resolves the shear band
+    there: the ring spacing ``(R2 - R1) / round((R2 - R1) / dr)`` of the polar layout, ``dr``
+    for the grid (whose points nearest r = R1 lie between dr/2 and about 1.2 dr from it)."""
+    if g.layout == "polar":
+        return (g.R2 - g.R1) / round((g.R2 - g.R1) / g.dr)
+    return g.dr
 
 
 def build_cloud(g: Geometry) -> Cloud:

@@ -3,7 +3,7 @@
 :func:`write_outputs` writes everything a run produces into one directory::
 
     summary.json                   scene, solver settings, t_end, n_points, stats, final probes,
-                                   rezone_times (Lagrangian re-seedings)
+                                   rezone_times (Lagrangian re-seedings), spatial_accuracy
     fields.npz                     t (S,), points (S, N, 2), u, v, T (S, N), material (N,);
                                    nodes (S, N, 2) when a Lagrangian run was rezoned
     probes.csv                     t, then <probe>_u, <probe>_v, <probe>_T per registration point
@@ -99,12 +99,62 @@ def end_time(result) -> float:
     return float(np.asarray(result.t, dtype=np.float64)[-1])
 
 
+def spatial_accuracy(result) -> dict | None:
+    """How well the run resolves the physics in space (``summary.json``'s ``spatial_accuracy``).
+
+    For a run of a :class:`~jaxanm.fsw.scene.Scene` (None for anything else):
+
+    - with ``viscous``: ``shear_band_width_m``, the width of the shear band at the tool edge
+      (:func:`jaxanm.fsw.axisymmetric.shear_band_width`, closed-form cheap),
+      ``edge_spacing_m``, the radial point spacing there
+      (:func:`jaxanm.fsw.geometry.edge_spacing`), and their ratio ``shear_band_points``;
+    - with ``conduction``: ``rise_error``, the temperature rise at the last saved time
+      against the axisymmetric continuum solution (:func:`jaxanm.fsw.axisymmetric.rise_error`,
+      about a second of 1-D solve): ``rel_l2``, ``mean_ratio``, ``max_abs_K``, ``t``.
+
+    At fsw_paper's dr the band is 0.28 points wide and the rise 15-18 % too high
+    (docs/spatial_convergence.md).
+    """
+    from jaxanm.fsw import axisymmetric, geometry
+    from jaxanm.fsw.scene import Scene
+
+    scene = getattr(result, "scene", None)
+    if not isinstance(scene, Scene):
+        return None
+    block = {}
+    if scene.has("viscous"):
+        width, spacing = axisymmetric.shear_band_width(scene), geometry.edge_spacing(scene.geometry)
+        block.update(shear_band_width_m=width, edge_spacing_m=spacing, shear_band_points=width / spacing)
+    if scene.has("conduction") and len(np.asarray(result.t)):
+        block["rise_error"] = axisymmetric.rise_error(result)
+    return block or None
+
+
+def spatial_accuracy_lines(block: dict | None) -> list[str]:
+    """The ``spatial_accuracy`` block of ``summary.json`` as lines for the command line."""
+    if not block:
+        return []
+    lines = []
+    if "shear_band_points" in block:
+        lines.append(f"shear band at the tool edge: {block['shear_band_width_m'] * 1e3:.3g} mm wide, "
+                     f"{block['shear_band_points']:.2g} points across (radial spacing "
+                     f"{block['edge_spacing_m'] * 1e3:.3g} mm there)")
+    err = block.get("rise_error")
+    if err:
+        lines.append(f"T - T0 at t = {err['t']:.6g} s against the axisymmetric continuum solution: "
+                     f"{100 * err['rel_l2']:.3g} % rel. L2 error, mean rise {err['mean_ratio']:.3g} x the "
+                     f"continuum's, max error {err['max_abs_K']:.3g} K")
+    return lines
+
+
 def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> Path:
     """Write ``summary.json``: scene, solver settings, ``t_end``, ``n_points``, stats, final probes.
 
     ``solver_settings`` is any dict/dataclass describing the solver; ``None`` takes
     ``result.solver``.  ``probes_final`` holds x, y, u, v, T of every registration point at
-    the last accepted step; ``rezone_times`` the times the Lagrangian cloud was re-seeded.
+    the last accepted step; ``rezone_times`` the times the Lagrangian cloud was re-seeded;
+    ``spatial_accuracy`` the resolution of the tool-edge shear band and the error of the
+    temperature rise (:func:`spatial_accuracy`; null for a result without a scene).
     """
     path = Path(out_dir) / "summary.json"
     final = {}
@@ -122,6 +172,7 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
         "stats": to_jsonable(result.stats),
         "probes_final": final,
         "rezone_times": [float(t) for t in getattr(result, "rezone_times", [])],
+        "spatial_accuracy": spatial_accuracy(result),
     }
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
