@@ -52,12 +52,16 @@ def test_known_perturbations_are_reported_relative_to_their_yardsticks(tmp_path)
     run = load_run(write_run(tmp_path / "run", T_shift=0.04, v_shift=2e-6, kind="newton",
                                           factorizations=60, wall=30.0))
     d = differences(run, ref)
-    # each saved time is measured against its own max |T - T0| (point 2: 40 t K) and max V
-    # (point 4: 4e-3 t m/s), so the earliest time, with the smallest yardstick, gives the maximum
+    # each saved time is measured against its own max |T - T0| (point 2: 40 t K) and max |V|
+    # (point 4: 4e-3 t m/s), so the earliest time, with the smallest yardstick, gives the maximum;
+    # the velocity difference is the vector's (v shifted by 2e-6 at point 2), not the speed's.
+    # rel=1e-9: a few roundings of numbers of order 1 (the exact values are these quotients)
     assert d["max_rel_dT"] == pytest.approx(0.04 / (40.0 * 0.1), rel=1e-9)
-    expected_dV = max((np.hypot(3e-3 * s, 2e-6) - 3e-3 * s) / (4e-3 * s) for s in (0.1, 0.2))
-    assert d["max_rel_dV"] == pytest.approx(expected_dV, rel=1e-9)
+    assert d["max_rel_dV"] == pytest.approx(2e-6 / (4e-3 * 0.1), rel=1e-9)
     assert d["probe_max_dT_K"] == pytest.approx(0.04, rel=1e-9)
+    # the probes' T relative to the reference's largest |T - T0| at the registration points (0.2 K)
+    assert d["probe_rel_dT"] == pytest.approx(0.04 / 0.2, rel=1e-9)
+    assert d["n_field_times"] == d["n_probe_times"] == 2
     assert d["probe_max_dV_over_omegaR1"] == pytest.approx(2e-6 / (OMEGA * R1), rel=1e-12)
     costs = [cost_row(r) for r in (ref, run)]
     table = compare_runs.markdown(costs, [d])
@@ -80,11 +84,11 @@ def test_a_field_the_reference_lacks_is_nan_not_a_warning(tmp_path):
     assert np.isnan(differences(run, ref)["max_rel_dT"])
 
 
-def test_runs_saved_at_different_times_are_refused(tmp_path):
+def test_runs_saved_at_no_common_time_are_refused(tmp_path):
     ref = load_run(write_run(tmp_path / "ref"))
     run = load_run(write_run(tmp_path / "run"))
-    run["fields"]["t"] = run["fields"]["t"] * 2
-    with pytest.raises(ValueError, match="different times"):
+    run["fields"]["t"] = run["fields"]["t"] * 3  # 0, 0.3, 0.6 against 0, 0.1, 0.2: only t = 0
+    with pytest.raises(ValueError, match=r"recorded fields at no common time t > 0 \(0.3, 0.6 against 0.1, 0.2\)"):
         differences(run, ref)
 
 
