@@ -23,7 +23,7 @@ from jaxanm.errors import InputError
 from jaxanm.fsw.scene import SCENES_DIR, SolverSpec
 from jaxanm.sweep import GridError, grid_from_dict, read_grid, run_sweep
 from jaxanm.sweep import runner
-from jaxanm.sweep.grid import SOLVER_KEYS
+from jaxanm.sweep.grid import IDA, SOLVER_KEYS
 from jaxanm.sweep.pareto import pareto_front
 from jaxanm.sweep.table import ERROR_COLUMNS, add_errors, columns
 from jaxanm.sweep.task import COST_COLUMNS, ROW_FILE, finished_row, run_task, task_spec
@@ -111,7 +111,7 @@ def test_keys_sharing_a_last_name_keep_their_section_in_the_id():
 
 def test_solver_keys_cover_the_scene_solver_fields():
     fields = {f.name for f in dataclasses.fields(SolverSpec)} - {"kind"}
-    assert set().union(*SOLVER_KEYS.values()) == fields
+    assert set().union(*(keys for kind, keys in SOLVER_KEYS.items() if kind != IDA)) == fields
 
 
 @pytest.mark.parametrize("data, expected", [
@@ -131,12 +131,73 @@ def test_solver_keys_cover_the_scene_solver_fields():
      "task 'tol=2.0': scene field 'solver.tol' = 2.0 is invalid: must be in (0, 1)"),
     ({"reference": "newton", "solvers": {"tol": [1e-6, 1e-8]}},
      "reference = 'newton' is not a task of this grid; its tasks are 'tol=1e-06', 'tol=1e-08'"),
-    ({"solver": {"tol": 1e-6}}, "unknown top-level key 'solver'; the keys are scene, reference, overrides, solvers"),
+    ({"solver": {"tol": 1e-6}}, "unknown top-level key 'solver'; the keys are scene, reference, warmup, overrides, solvers"),
     ({"scene": "no_such_scene"}, "scene = 'no_such_scene': unknown scene"),
     ({"scene": 3}, "give the base scene as scene = \"NAME\""),
     ({"solvers": [{}]}, "[[solvers]] #1 is empty"),
 ])
 def test_bad_grids_are_named_with_the_fix(data, expected):
+    assert expected in grid_error(data)
+
+
+def test_scene_keys_in_a_solver_entry_cross_that_entry_only():
+    g = grid({"overrides": {"time.t_end": 1.0},
+              "solvers": [{"kind": "mnewton", "tol": 1e-8, "time.dt": [1.0, 0.5]},
+                          {"kind": "anm", "time": {"dt": 0.25}}]})
+    assert [t.id for t in g.tasks] == ["dt=1.0-mnewton-tol=1e-08", "dt=0.5-mnewton-tol=1e-08", "dt=0.25-anm"]
+    assert [(t.scene.time.dt, t.scene.solver.kind) for t in g.tasks] == [
+        (1.0, "modified_newton"), (0.5, "modified_newton"), (0.25, "anm")]
+    assert all(t.scene.time.t_end == 1.0 and t.ida is None for t in g.tasks)
+
+
+def test_ida_tasks_carry_their_settings_not_a_scene_solver():
+    g = grid({"scene": "conduction_small", "solvers": [{"kind": "newton"}, {"kind": "ida", "rtol": [1e-4, 1e-6]},
+                                                       {"kind": "ida", "rtol": 1e-5, "atol": 1e-3, "max_order": 2}]})
+    assert [t.id for t in g.tasks] == ["newton", "ida-rtol=0.0001", "ida-rtol=1e-06",
+                                       "ida-rtol=1e-05-atol=0.001-max_order=2"]
+    assert g.tasks[1].ida == {"rtol": 1e-4, "atol": 1e-4, "max_order": 5}  # atol defaults to rtol
+    assert g.tasks[3].ida == {"rtol": 1e-5, "atol": 1e-3, "max_order": 2}
+    assert g.tasks[1].scene == g.base and g.tasks[1].overrides == {"solver.kind": "ida", "solver.rtol": 1e-4}
+    assert g.keys == ("solver.kind", "solver.rtol", "solver.atol", "solver.max_order")
+
+
+def test_a_richardson_reference_is_three_tasks_at_dt_dt2_dt4():
+    g = grid({"scene": "conduction_small", "overrides": {"time.t_end": 0.2, "time.save": [0.1]},
+              "reference": {"richardson": {"dt": 0.025, "kind": "mnewton", "tol": 1e-10}},
+              "solvers": {"kind": "newton", "time.dt": [0.1, 0.05]}})
+    assert g.reference is None and g.richardson.dt == 0.025
+    ref = g.richardson.tasks
+    assert [t.id for t in ref] == ["richardson-dt=0.025", "richardson-dt=0.0125", "richardson-dt=0.00625"]
+    assert [t.scene.time.dt for t in ref] == [0.025, 0.0125, 0.00625]
+    assert all((t.scene.time.t_end, t.scene.time.save, t.scene.solver.kind, t.scene.solver.tol, t.scene.time.adaptive)
+               == (0.2, (0.1,), "modified_newton", 1e-10, False) for t in ref)
+
+
+RICHARDSON = {"richardson": {"dt": 0.025, "kind": "mnewton", "tol": 1e-10}}
+
+
+@pytest.mark.parametrize("data, expected", [
+    ({"scene": "fsw_small", "solvers": {"kind": "ida"}}, "IDA needs fixed points and scene 'fsw_small' is Lagrangian"),
+    ({"scene": "conduction_small", "solvers": {"kind": "ida", "rtol": 2.0}}, "rtol = 2.0 must be a number in (0, 1)"),
+    ({"scene": "conduction_small", "solvers": {"kind": "ida", "atol": -1.0}}, "atol = -1.0 must be a number >= 0"),
+    ({"scene": "conduction_small", "solvers": {"kind": "ida", "max_order": 6}}, "max_order = 6 must be an integer from 1"),
+    ({"scene": "conduction_small", "solvers": {"kind": "ida", "tol": 1e-6}},
+     "'tol': it does not apply to kind = 'ida'; kind 'ida' takes rtol, atol, max_order"),
+    ({"overrides": {"time.dt": 0.5}, "solvers": {"kind": "newton", "time.dt": [1.0]}},
+     "'time.dt' is both in [overrides] and in a [[solvers]] entry"),
+    ({"solvers": {"kind": "newton", "time.dtt": [1.0]}}, "[solvers]: unknown scene key 'time.dtt'"),
+    ({"scene": "conduction_small", "reference": {"richardson": {"dt": -1.0, "kind": "mnewton"}}},
+     "[reference.richardson]: dt = -1.0 must be a positive number"),
+    ({"scene": "conduction_small", "overrides": {"time.t_end": [0.2, 0.3]}, "reference": RICHARDSON},
+     "the reference runs the grid's [overrides], which must then be single values"),
+    ({"scene": "conduction_small", "reference": {"richardson": {"dt": 0.025, "kind": "ida"}}},
+     "give one implicit-Euler solver"),
+    ({"scene": "conduction_small", "reference": {"richardson": {"dt": 0.03, "kind": "mnewton"}}},
+     "save time 0.1 s is no multiple of dt = 0.03"),
+    ({"scene": "conduction_small", "reference": {"dt": 0.03}}, "reference must be a task id"),
+    ({"warmup": "yes"}, "warmup = 'yes' must be true or false"),
+])
+def test_bad_ida_richardson_and_entry_overrides_are_named(data, expected):
     assert expected in grid_error(data)
 
 
@@ -158,6 +219,14 @@ def test_committed_grids_read():
     assert table1.base.name == "fsw_paper" and table1.tasks[0].scene.time.t_end == 0.7
     demo = read_grid(root / "couette_demo.toml")
     assert len(demo.tasks) == 4 and demo.reference in {t.id for t in demo.tasks}
+    # the configurations of docs/accuracy_cost_paper.json (30 rows, 5 of them IDA) and the Lagrangian front
+    tracers = read_grid(root / "accuracy_cost_tracers.toml")
+    assert len(tracers.tasks) == 30 and sum(t.ida is not None for t in tracers.tasks) == 5 and tracers.warmup
+    assert tracers.richardson.dt == 5e-5 and tracers.base.name == "fsw_tracers"
+    assert {t.scene.time.t_end for t in tracers.tasks} == {0.1}
+    lagrangian = read_grid(root / "accuracy_cost_lagrangian.toml")
+    assert lagrangian.base.has("lagrangian") and all(t.ida is None for t in lagrangian.tasks)
+    assert {t.scene.time.dt for t in lagrangian.tasks} == {1e-3, 5e-4, 2e-4, 1e-4, 1e-5}
 
 
 # --------------------------------------------------------------------------- table and plot helpers

@@ -10,7 +10,7 @@ A grid file is TOML::
     "time.dt" = [0.05, 0.025]       # a list: one task per value (an axis of a cartesian product)
 
     [[solvers]]                     # solver settings; each entry is the product of its own lists
-    kind = "anm"                    # anm | newton | mnewton (default: the scene's solver.kind)
+    kind = "anm"                    # anm | newton | mnewton | ida (default: the scene's solver.kind)
     order = [5, 7]
     tol = 1e-6
     [[solvers]]
@@ -25,6 +25,34 @@ mean the same as quoted ones.  A field whose value is itself a list (``effects``
 scene's ``solver.*`` fields that apply to the kind: ``anm`` takes ``order, tol, criterion,
 max_substeps, adaptive, homotopy, pade``; ``newton`` ``tol``; ``mnewton`` ``tol, max_rate``.
 
+**Scene overrides in a solver entry.**  A ``[[solvers]]`` entry may also hold dotted scene keys
+(``"time.dt" = [1e-3, 1e-4]``): they are crossed with that entry's solver settings only, so
+a grid that is no product (modified Newton over six steps, the ANM over three, IDA over its
+tolerances and no step) is one file.  A key may be in ``[overrides]`` or in solver entries,
+not both.
+
+**IDA** (``kind = "ida"``, :mod:`jaxanm.fsw.ida_scene`): SUNDIALS IDA on the scene's residual,
+fixed-point scenes only; settings ``rtol, atol, max_order`` (defaults
+:data:`jaxanm.fsw.ida_scene.IDA_DEFAULTS`, ``atol`` = ``rtol`` unless given; they appear as
+``solver.rtol`` etc. in the task's overrides and the table).  The scene's ``time.dt`` and
+``solver.*`` do not enter an IDA task; its outputs are the scene's save times.
+
+**A Richardson reference** instead of a reference task::
+
+    [reference.richardson]
+    dt = 5e-5                       # implicit Euler at dt, dt/2 and dt/4 ...
+    kind = "mnewton"                # ... with this solver and its settings
+    tol = 1e-10
+
+adds three tasks (``richardson-dt=...``) that run the base scene with the grid's top-level
+``[overrides]`` (single values then: the reference must be one scene) at fixed steps dt, dt/2,
+dt/4; the sweep then extrapolates them (:mod:`jaxanm.sweep.richardson`).  Every save time of
+that scene must be a multiple of dt, so that all three runs end a step there.
+
+``warmup = true`` makes each task first run its configuration briefly (two steps; IDA to a
+tenth of its first output time), untimed, so that ``wall_s`` excludes the JIT compilation
+(:mod:`jaxanm.sweep.task`); without it the first task of each solver on each worker pays it.
+
 Each task's id names the values that vary across the grid, the solver kind by itself
 (``anm-order=5``, ``dt=0.05-newton-tol=1e-10``; ``run`` when nothing varies).  Every task's
 scene is built and validated when the grid is read, so a bad grid fails before any
@@ -35,23 +63,30 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import re
 import tomllib
 from pathlib import Path
 
 from jaxanm.fsw.scene import Scene, SceneError, load_scene, override_keys
 
-__all__ = ["SOLVER_KEYS", "Grid", "GridError", "Task", "grid_from_dict", "read_grid"]
+__all__ = ["IDA", "RICHARDSON", "SOLVER_KEYS", "Grid", "GridError", "Richardson", "Task", "grid_from_dict",
+           "read_grid"]
 
 SOLVER_KINDS = {"anm": "anm", "newton": "newton", "mnewton": "modified_newton"}
-"""Solver kinds of a grid (those of ``jaxanm run --solver``) -> ``solver.kind`` of the scene."""
+"""Implicit-Euler solver kinds of a grid (those of ``jaxanm run --solver``) -> ``solver.kind`` of the scene."""
+IDA = "ida"
+"""The grid kind of IDA tasks (no scene solver: :mod:`jaxanm.fsw.ida_scene`)."""
 SOLVER_KEYS = {
     "anm": ("order", "tol", "criterion", "max_substeps", "adaptive", "homotopy", "pade"),
     "newton": ("tol",),
     "mnewton": ("tol", "max_rate"),
+    IDA: ("rtol", "atol", "max_order"),
 }
-"""Solver settings (``solver.*`` scene fields besides ``kind``) that apply to each kind."""
-TOP_KEYS = ("scene", "reference", "overrides", "solvers")
+"""Solver settings that apply to each kind (``solver.*`` scene fields besides ``kind``; IDA's own)."""
+RICHARDSON = "richardson"
+"""Prefix of the ids of a Richardson reference's tasks."""
+TOP_KEYS = ("scene", "reference", "warmup", "overrides", "solvers")
 """Keys a grid file may have at its top level."""
 
 
@@ -61,23 +96,37 @@ class GridError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class Task:
-    """One grid point: its id, its overrides (dotted scene keys, as in the grid) and its scene."""
+    """One grid point: its id, its overrides (dotted scene keys, as in the grid), its scene and,
+    for an IDA task, IDA's settings."""
 
     id: str
     overrides: dict
     scene: Scene
+    ida: dict | None = None
+    """IDA settings (``rtol, atol, max_order``) of an IDA task; None for an implicit-Euler run."""
 
 
 @dataclasses.dataclass(frozen=True)
 class Grid:
     """A read grid: its name (the file's stem), base scene, override keys in column order,
-    tasks in grid order and the reference task id (or None)."""
+    tasks in grid order and the reference task id (or None), or a Richardson reference, and
+    whether each task first makes an untimed compiling run (``warmup``)."""
 
     name: str
     base: Scene
     keys: tuple
     tasks: tuple
     reference: str | None = None
+    richardson: Richardson | None = None
+    warmup: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class Richardson:
+    """A Richardson reference: its coarsest step ``dt`` and its three tasks at dt, dt/2, dt/4."""
+
+    dt: float
+    tasks: tuple
 
 
 def read_grid(path) -> Grid:
@@ -102,31 +151,111 @@ def grid_from_dict(data: dict, name: str = "grid", base_dir=".", source: str = "
         raise GridError(f"{source}: unknown top-level key {unknown[0]!r}; the keys are {', '.join(TOP_KEYS)} "
                         "(scene fields go under [overrides], solver settings under [[solvers]])")
     base = _base_scene(data.get("scene"), Path(base_dir), source)
-    points = [{**o, **s} for o, s in itertools.product(_override_points(data.get("overrides", {}), base, source),
-                                                      _solver_points(data.get("solvers", {}), base, source))]
+    override_points = _override_points(data.get("overrides", {}), base, source)
+    solver_points = _solver_points(data.get("solvers", {}), base, source)
+    shared = {k for p in override_points for k in p} & {k for p in solver_points for k in p}
+    if shared:
+        raise GridError(f"{source}: {sorted(shared)[0]!r} is both in [overrides] and in a [[solvers]] entry; give "
+                        "it in one place (in each solver entry, if it differs between them)")
+    points = [{**o, **s} for o, s in itertools.product(override_points, solver_points)]
     keys = tuple(dict.fromkeys(k for p in points for k in p))
     keys = tuple(sorted(keys, key=lambda k: k.startswith("solver.")))  # scene fields first, stable
     ids = _task_ids(points, keys)
     tasks, seen = [], {}
     for task_id, overrides in zip(ids, points):
-        try:
-            scene = base.with_overrides(overrides)
-        except SceneError as exc:
-            raise GridError(f"{source}: task {task_id!r}: {exc}") from exc
-        same = next((i for i, s in seen.items() if s == scene), None)
+        task = _task(task_id, overrides, base, f"{source}: task {task_id!r}")
+        same = next((i for i, t in seen.items() if (t.scene, t.ida) == (task.scene, task.ida)), None)
         if same is not None:
             raise GridError(f"{source}: tasks {same!r} and {task_id!r} are the same run; list each value "
                             "once (an axis value repeated, or two entries that overlap)")
         if task_id in seen:
             raise GridError(f"{source}: two tasks get the id {task_id!r} (their values differ only in characters "
                             "an id cannot hold); write the values differently")
-        seen[task_id] = scene
-        tasks.append(Task(task_id, overrides, scene))
-    reference = data.get("reference")
-    if reference is not None and reference not in seen:
+        seen[task_id] = task
+        tasks.append(task)
+    reference, richardson = data.get("reference"), None
+    if isinstance(reference, dict):
+        richardson, reference = _richardson(reference, override_points, base, set(seen), source), None
+    elif reference is not None and reference not in seen:
         listed = ", ".join(repr(i) for i in ids[:20]) + (", ..." if len(ids) > 20 else "")
-        raise GridError(f"{source}: reference = {reference!r} is not a task of this grid; its tasks are {listed}")
-    return Grid(name=name, base=base, keys=keys, tasks=tuple(tasks), reference=reference)
+        raise GridError(f"{source}: reference = {reference!r} is not a task of this grid; its tasks are {listed} "
+                        "(or give a Richardson reference: [reference.richardson] with dt and a solver)")
+    warmup = data.get("warmup", False)
+    if not isinstance(warmup, bool):
+        raise GridError(f"{source}: warmup = {warmup!r} must be true or false")
+    return Grid(name=name, base=base, keys=keys, tasks=tuple(tasks), reference=reference, richardson=richardson,
+                warmup=warmup)
+
+
+def _task(task_id: str, overrides: dict, base: Scene, where: str) -> Task:
+    """The :class:`Task` of one grid point: its scene, and IDA's settings for an IDA point."""
+    ida = None
+    scene_overrides = overrides
+    if overrides.get("solver.kind") == IDA:
+        from jaxanm.fsw.ida_scene import IDA_DEFAULTS
+
+        ida = {**IDA_DEFAULTS, **{k.split(".", 1)[1]: v for k, v in overrides.items() if k.startswith("solver.")}}
+        del ida["kind"]
+        ida.setdefault("atol", ida["rtol"])
+        scene_overrides = {k: v for k, v in overrides.items() if not k.startswith("solver.")}
+        _check_ida(ida, where)
+    try:
+        scene = base.with_overrides(scene_overrides)
+    except SceneError as exc:
+        raise GridError(f"{where}: {exc}") from exc
+    if ida is not None and scene.has("lagrangian"):
+        raise GridError(f"{where}: IDA needs fixed points and scene {scene.name!r} is Lagrangian (its points move "
+                        "between steps, so its step residual is no DAE); use the fixed-point scene (fsw_tracers "
+                        "for fsw_paper) or an implicit-Euler kind")
+    return Task(task_id, overrides, scene, ida)
+
+
+def _check_ida(ida: dict, where: str) -> None:
+    """IDA's settings, checked as :func:`jaxanm.ida.integrate_ida` will (before any run)."""
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if not (number(ida["rtol"]) and 0 < ida["rtol"] < 1):
+        raise GridError(f"{where}: rtol = {ida['rtol']!r} must be a number in (0, 1) (IDA: 1e-15 <= rtol <= 1e-3 "
+                        "is its useful range)")
+    if not (number(ida["atol"]) and ida["atol"] >= 0):
+        raise GridError(f"{where}: atol = {ida['atol']!r} must be a number >= 0 (relative to each unknown's scale)")
+    if not (isinstance(ida["max_order"], int) and not isinstance(ida["max_order"], bool)
+            and 1 <= ida["max_order"] <= 5):
+        raise GridError(f"{where}: max_order = {ida['max_order']!r} must be an integer from 1 to 5 (BDF orders)")
+
+
+def _richardson(table: dict, override_points: list, base: Scene, ids: set, source: str) -> Richardson:
+    """The three tasks of a ``[reference.richardson]`` table (module docstring)."""
+    where = f"{source}: [reference.richardson]"
+    spec = table.get("richardson") if set(table) == {"richardson"} else None
+    if not isinstance(spec, dict):
+        raise GridError(f"{source}: reference must be a task id (reference = \"ID\") or a table "
+                        "[reference.richardson] with dt and a solver (kind, tol, ...)")
+    dt = spec.get("dt")
+    if not (isinstance(dt, (int, float)) and not isinstance(dt, bool) and math.isfinite(dt) and dt > 0):
+        raise GridError(f"{where}: dt = {dt!r} must be a positive number (the coarsest of dt, dt/2, dt/4)")
+    if len(override_points) != 1:
+        raise GridError(f"{where}: the reference runs the grid's [overrides], which must then be single values "
+                        "(one scene); put axes such as time.dt in the [[solvers]] entries")
+    solver = _solver_points({k: v for k, v in spec.items() if k != "dt"}, base, where)
+    if len(solver) != 1 or solver[0].get("solver.kind") == IDA or any(not k.startswith("solver.") for k in solver[0]):
+        raise GridError(f"{where}: give one implicit-Euler solver (kind = \"mnewton\", tol = 1e-10: single values, "
+                        "no scene keys)")
+    tasks = []
+    for level in range(3):
+        step = dt / 2 ** level
+        task_id = f"{RICHARDSON}-dt={_format(float(step))}"
+        if task_id in ids:
+            raise GridError(f"{where}: the grid already has a task {task_id!r}; rename it")
+        overrides = {**override_points[0], "time.dt": step, "time.adaptive": False, **solver[0]}
+        tasks.append(_task(task_id, overrides, base, where))
+    scene = tasks[0].scene
+    off = [t for t in scene.time.save_times if t > 0 and abs(t / dt - round(t / dt)) > 1e-9 * t / dt]
+    if off:
+        raise GridError(f"{where}: save time {off[0]!r} s is no multiple of dt = {dt!r}: all three runs must end a "
+                        "step at every save time (time.save and time.t_end in [overrides]); choose dt dividing them")
+    return Richardson(dt=float(dt), tasks=tuple(tasks))
 
 
 def _base_scene(value, base_dir: Path, source: str) -> Scene:
@@ -155,35 +284,50 @@ def _entries(value, table: str, source: str) -> list[dict]:
 
 def _override_points(value, base: Scene, source: str) -> list[dict]:
     """Every point of the ``overrides`` entries: ``{dotted key: value}``."""
-    allowed = set(override_keys())
     points = []
     for i, entry in enumerate(_entries(value, "overrides", source)):
         where = f"{source}: [overrides]" if isinstance(value, dict) else f"{source}: [[overrides]] #{i + 1}"
         flat = _flatten(entry)
-        for key in flat:
-            if key.startswith("solver."):
-                raise GridError(f"{where}: {key!r} is a solver setting; give it under [[solvers]] as "
-                                f"{key.split('.', 1)[1]} = ...")
-            if key not in allowed:
-                raise GridError(f"{where}: unknown scene key {key!r}; the keys of `jaxanm run --set` are "
-                                f"{', '.join(k for k in override_keys() if not k.startswith('solver.'))}")
-        points += _product(flat, {k for k in flat if isinstance(_scene_value(base, k), tuple)}, where)
+        _check_scene_keys(flat, where)
+        points += _product(flat, _list_valued(flat, base), where)
     return points
 
 
+def _check_scene_keys(flat: dict, where: str) -> None:
+    """Every key of ``flat`` is a scene key of ``jaxanm run --set`` (solver settings excepted)."""
+    allowed = set(override_keys())
+    for key in flat:
+        if key.startswith("solver."):
+            raise GridError(f"{where}: {key!r} is a solver setting; give it under [[solvers]] as "
+                            f"{key.split('.', 1)[1]} = ...")
+        if key not in allowed:
+            raise GridError(f"{where}: unknown scene key {key!r}; the keys of `jaxanm run --set` are "
+                            f"{', '.join(k for k in override_keys() if not k.startswith('solver.'))}")
+
+
+def _list_valued(flat: dict, base: Scene) -> set:
+    """The keys of ``flat`` whose scene field is itself a list (``effects``, ``time.save``)."""
+    return {k for k in flat if isinstance(_scene_value(base, k), tuple)}
+
+
 def _solver_points(value, base: Scene, source: str) -> list[dict]:
-    """Every point of the ``solvers`` entries: ``{"solver.<key>": value}`` (kind as the scene names it)."""
+    """Every point of the ``solvers`` entries: ``{"solver.<key>": value}`` (kind as the scene names
+    it, or ``ida``) and the entry's own scene overrides (dotted keys)."""
     scene_kinds = {v: k for k, v in SOLVER_KINDS.items()}
+    kinds_text = ", ".join([*SOLVER_KINDS, IDA])
     points = []
-    for i, entry in enumerate(_entries(value, "solvers", source)):
+    for i, raw in enumerate(_entries(value, "solvers", source)):
         where = f"{source}: [solvers]" if isinstance(value, dict) else f"{source}: [[solvers]] #{i + 1}"
+        entry = _flatten(raw)
+        scene_part = {k: v for k, v in entry.items() if "." in k}
+        _check_scene_keys(scene_part, where)
         kinds = entry.get("kind", scene_kinds[base.solver.kind])
         for kind in kinds if isinstance(kinds, list) else [kinds]:
-            if not isinstance(kind, str) or (kind not in SOLVER_KINDS and kind not in scene_kinds):
-                raise GridError(f"{where}: kind = {kind!r} is unknown; use one of {', '.join(SOLVER_KINDS)}")
+            if not isinstance(kind, str) or (kind not in SOLVER_KEYS and kind not in scene_kinds):
+                raise GridError(f"{where}: kind = {kind!r} is unknown; use one of {kinds_text}")
             short = scene_kinds.get(kind, kind)
-            for key, setting in entry.items():
-                if key == "kind":
+            for key in entry:
+                if key == "kind" or key in scene_part:
                     continue
                 if key not in SOLVER_KEYS[short]:
                     known = key in {k for keys in SOLVER_KEYS.values() for k in keys}
@@ -191,11 +335,11 @@ def _solver_points(value, base: Scene, source: str) -> list[dict]:
                            else "it is not a solver setting")
                     raise GridError(f"{where}: {key!r}: {why}; kind {short!r} takes "
                                     f"{', '.join(SOLVER_KEYS[short])} (put other kinds in their own [[solvers]] entry)")
-                if isinstance(setting, dict):
-                    raise GridError(f"{where}: {key!r} must be a value or a list of values, got a table")
-            fixed = {"solver.kind": SOLVER_KINDS[short]} if "kind" in entry else {}
-            settings = {f"solver.{k}": v for k, v in entry.items() if k != "kind"}
-            points += [{**fixed, **p} for p in _product(settings, set(), where)]
+            fixed = {"solver.kind": IDA if short == IDA else SOLVER_KINDS[short]} if "kind" in entry else {}
+            settings = {f"solver.{k}": v for k, v in entry.items() if k != "kind" and k not in scene_part}
+            solver = _product(settings, set(), where)
+            scenes = _product(scene_part, _list_valued(scene_part, base), where)
+            points += [{**sc, **fixed, **p} for sc in scenes for p in solver]
     return points
 
 
@@ -247,7 +391,7 @@ def _task_ids(points: list[dict], keys: tuple) -> list[str]:
             if key not in p:
                 continue
             if key == "solver.kind":
-                parts.append({v: k for k, v in SOLVER_KINDS.items()}[p[key]])
+                parts.append({v: k for k, v in SOLVER_KINDS.items()}.get(p[key], p[key]))
             else:
                 parts.append(f"{end if ends.count(end) == 1 else key}={_format(p[key])}")
         ids.append(re.sub(r"[^A-Za-z0-9_.+=-]", "_", "-".join(parts)) or "run")

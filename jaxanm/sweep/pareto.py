@@ -17,9 +17,9 @@ from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
 from jaxanm.fsw.output import atomic_path
 
-__all__ = ["MARKERS", "pareto_front", "plot_pareto"]
+__all__ = ["MARKERS", "cheapest", "method", "pareto_front", "plot_pareto"]
 
-MARKERS = {"anm": "o", "newton": "s", "modified_newton": "^"}
+MARKERS = {"anm": "o", "newton": "s", "modified_newton": "^", "ida": "*"}
 """Marker of each solver kind (``summary.json``'s ``solver.kind``)."""
 
 
@@ -31,6 +31,31 @@ def pareto_front(points: list[tuple[float, float]]) -> list[tuple[float, float]]
             front.append((time, error))
             best = error
     return front
+
+
+def method(row: dict) -> str:
+    """A row's method: its solver kind, with ``+adaptive dt`` when its steps are adaptive."""
+    adaptive = str(row.get("time.adaptive", "")).lower() == "true"
+    return f"{row['kind']}+adaptive dt" if adaptive else str(row["kind"])
+
+
+def cheapest(rows: list[dict], levels=(1e-2, 1e-3, 1e-4, 1e-5)) -> list[dict]:
+    """Per error level: the fastest finished row of each :func:`method` whose ``rel_err`` reaches it.
+
+    Returns ``[{"level", "by_method": {method: row}}]``, each ``by_method`` by increasing
+    ``wall_s`` (the first is the cheapest); rows without a finite error (failed, not comparable,
+    the reference's own estimate) are left out.
+    """
+    usable = [r for r in rows if r.get("status") == "ok" and r.get("kind") != "richardson"
+              and isinstance(r.get("rel_err"), float) and math.isfinite(r["rel_err"])]
+    out = []
+    for level in levels:
+        best = {}
+        for r in usable:
+            if r["rel_err"] <= level and (method(r) not in best or r["wall_s"] < best[method(r)]["wall_s"]):
+                best[method(r)] = r
+        out.append({"level": level, "by_method": dict(sorted(best.items(), key=lambda kv: kv[1]["wall_s"]))})
+    return out
 
 
 def plot_pareto(rows: list[dict], path, title: str) -> Path | None:
@@ -60,7 +85,7 @@ def plot_pareto(rows: list[dict], path, title: str) -> Path | None:
         axis.set_major_formatter(FormatStrFormatter("%g"))
         axis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("wall time of the time loop (s)")
-    ax.set_ylabel("relative error, max of V and T - T0 over the saved fields")
+    ax.set_ylabel("relative error: max of V, T - T0 (fields, probes) at common times")
     ax.set_title(title, fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()

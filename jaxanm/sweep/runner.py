@@ -5,6 +5,12 @@ The sweep directory holds::
     results.csv          one row per task (jaxanm.sweep.table), rewritten as each task finishes
     pareto.png           error against wall time (with a reference run)
     runs/<task id>/      the task's `jaxanm run --out` files and its row (jaxanm.sweep.task)
+    reference/           with a Richardson reference: the extrapolated run (jaxanm.sweep.richardson)
+
+With a Richardson reference (``[reference.richardson]`` in the grid), its three runs are tasks
+like the others (submitted first: they are the longest), listed after the grid's tasks; the
+table's last row, ``richardson``, holds the reference's estimated error in the error columns
+and the three runs' costs summed.
 
 Tasks run on a ``LocalCluster`` of worker processes (one thread each) on this machine, or on
 the workers of a running Dask scheduler whose address is given; they then must see the sweep
@@ -24,21 +30,27 @@ from jaxanm.errors import InputError
 from jaxanm.fsw.compare import load_run
 from jaxanm.sweep.grid import Grid, read_grid
 from jaxanm.sweep.pareto import plot_pareto
-from jaxanm.sweep.table import TABLE_NAME, add_errors, write_table
-from jaxanm.sweep.task import failed_row, finished_row, run_task, task_spec
+from jaxanm.sweep.richardson import write_reference
+from jaxanm.sweep.table import TABLE_NAME, add_errors, error_columns, write_table
+from jaxanm.sweep.task import COST_COLUMNS, failed_row, finished_row, run_task, task_spec
 
-__all__ = ["PLOT_NAME", "RUNS_DIR", "SweepResult", "run_sweep"]
+__all__ = ["PLOT_NAME", "REFERENCE_DIR", "RICHARDSON_ROW", "RUNS_DIR", "SweepResult", "run_sweep"]
 
 RUNS_DIR = "runs"
 """Sub-directory of the sweep directory holding one output directory per task."""
 PLOT_NAME = "pareto.png"
 """File name of the Pareto plot in the sweep directory."""
+REFERENCE_DIR = "reference"
+"""Sub-directory of the sweep directory holding a Richardson reference."""
+RICHARDSON_ROW = "richardson"
+"""Task column of the row holding a Richardson reference's estimated error."""
 
 
 @dataclasses.dataclass
 class SweepResult:
     """What :func:`run_sweep` did: the rows in grid order, the files written, the tasks that
-    failed, how many rows were re-read from finished runs, notes for the user and the wall time."""
+    failed, how many rows were re-read from finished runs, notes for the user, the wall time and
+    a Richardson reference's estimated error (:data:`jaxanm.sweep.table.ERROR_COLUMNS`, or None)."""
 
     rows: list
     table: Path
@@ -48,6 +60,7 @@ class SweepResult:
     reused: int
     notes: list
     wall_s: float
+    reference_error: dict | None = None
 
 
 def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2, progress: bool = True,
@@ -95,7 +108,8 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
     out_dir = Path(out_dir) if out_dir is not None else Path("results") / f"sweep-{grid.name}"
     out_dir.mkdir(parents=True, exist_ok=True)
     use_cache = cache.requested() if compile_cache is None else compile_cache
-    specs = [task_spec(t, out_dir / RUNS_DIR / t.id, use_cache) for t in grid.tasks]
+    reference_tasks = grid.richardson.tasks if grid.richardson is not None else ()
+    specs = [task_spec(t, out_dir / RUNS_DIR / t.id, use_cache, grid.warmup) for t in (*grid.tasks, *reference_tasks)]
     rows = {}
     for spec in specs:
         row = finished_row(spec)
@@ -108,7 +122,7 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
         return [{**rows[s["id"]], "dir": f"{RUNS_DIR}/{s['id']}"} for s in specs if s["id"] in rows]
 
     write_table(table, ordered(), grid.keys)
-    todo = [s for s in specs if s["id"] not in rows]
+    todo = [s for s in specs[len(grid.tasks):] + specs[:len(grid.tasks)] if s["id"] not in rows]  # longest first
     if todo:
         from tqdm import tqdm
 
@@ -125,7 +139,7 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
         finally:
             bar.close()
     result = ordered()
-    notes, plot, ref_dir = [], None, None
+    notes, plot, ref_dir, estimate = [], None, None, None
     if reference is not None:
         ref_dir, label = Path(reference), str(reference)
     elif grid.reference is not None:
@@ -133,18 +147,58 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
             ref_dir, label = out_dir / RUNS_DIR / grid.reference, f"task {grid.reference}"
         else:
             notes.append(f"reference task {grid.reference!r} failed: no errors and no Pareto plot")
+    elif grid.richardson is not None:
+        ref_dir, estimate = _richardson(grid, rows, out_dir, notes)
+        label = (f"Richardson reference from dt = {grid.richardson.dt:g}, /2, /4 (estimated error "
+                 f"{estimate['rel_err']:.1e})" if estimate else "")
     if ref_dir is not None:
         result = add_errors(result, ref_dir, out_dir)
-        write_table(table, result, grid.keys, errors=True)
         plot = plot_pareto(result, out_dir / PLOT_NAME,
                            f"sweep {grid.name} ({grid.base.name}): errors against {label}")
+        if estimate is not None:
+            result.append(_estimate_row(grid, rows, estimate))
+        write_table(table, result, grid.keys, errors=True)
         if plot is None:
             notes.append("no task has a positive error against the reference: no Pareto plot")
     if plot is None:  # a plot left by an earlier sweep in this directory would describe other rows
         (out_dir / PLOT_NAME).unlink(missing_ok=True)
     return SweepResult(rows=result, table=table, plot=plot, reference=ref_dir,
                        failed=[r["task"] for r in result if r["status"] != "ok"], reused=reused, notes=notes,
-                       wall_s=time.perf_counter() - start)
+                       wall_s=time.perf_counter() - start,
+                       reference_error=None if estimate is None else {k: v for k, v in estimate.items()
+                                                                      if k != "compare_note"})
+
+
+def _richardson(grid: Grid, rows: dict, out_dir: Path, notes: list):
+    """The Richardson reference of ``grid`` from its three finished runs, written to
+    :data:`REFERENCE_DIR`: ``(directory, error columns of its estimate)``, or ``(None, None)``
+    with a note when a run failed or the runs cannot be extrapolated."""
+    ids = [t.id for t in grid.richardson.tasks]
+    failed = [i for i in ids if rows[i]["status"] != "ok"]
+    if failed:
+        notes.append(f"Richardson reference: task {failed[0]!r} failed: no errors and no Pareto plot")
+        return None, None
+    ref_dir = out_dir / REFERENCE_DIR
+    try:
+        _, estimate = write_reference([out_dir / RUNS_DIR / i for i in ids], ref_dir)
+    except (OSError, ValueError) as exc:
+        notes.append(f"Richardson reference: {' '.join(str(exc).split())}: no errors and no Pareto plot")
+        return None, None
+    return ref_dir, {**error_columns(estimate), "compare_note": "estimated error of the Richardson reference: "
+                     "|coarse - fine| / 3 (jaxanm.sweep.richardson)"}
+
+
+def _estimate_row(grid: Grid, rows: dict, estimate: dict) -> dict:
+    """The table row of a Richardson reference: its estimated error and its three runs' costs summed."""
+    runs = [rows[t.id] for t in grid.richardson.tasks]
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    summed = {k: sum(r[k] for r in runs) for k in (*COST_COLUMNS, "task_s") if all(number(r.get(k)) for r in runs)}
+    steps = " ".join(f"{grid.richardson.dt / 2 ** k:g}" for k in range(3))
+    return {"task": RICHARDSON_ROW, "status": "ok", "message": "", "reused": all(r.get("reused") for r in runs),
+            **summed, "t_end": runs[0].get("t_end"), "kind": RICHARDSON_ROW, "solver": f"richardson dt={steps}",
+            "dir": REFERENCE_DIR, **estimate}
 
 
 def _run_on_dask(specs: list[dict], scheduler: str | None, workers: int):

@@ -25,20 +25,26 @@ from jaxanm.fsw.compare import differences, load_run
 from jaxanm.fsw.output import atomic_path
 from jaxanm.sweep.task import COST_COLUMNS
 
-__all__ = ["ERROR_COLUMNS", "TABLE_NAME", "add_errors", "columns", "write_table"]
+__all__ = ["ERROR_COLUMNS", "TABLE_NAME", "add_errors", "columns", "error_columns", "read_table", "write_table"]
 
 TABLE_NAME = "results.csv"
 """File name of the results table in the sweep directory."""
-ERROR_COLUMNS = ("rel_err", "rel_err_V", "rel_err_T", "err_points_m", "probe_err_T_K", "probe_err_V",
-                 "compare_note")
-"""Errors against the reference (:func:`jaxanm.fsw.compare.differences`): ``rel_err_V`` and
-``rel_err_T`` are its ``max_rel_dV`` and ``max_rel_dT`` (fields at the saved times, relative to the
-reference's max V and max |T - T0|), ``rel_err`` the larger of the two that the scene has (the
-Pareto plot's error), ``err_points_m`` its ``max_dpoints_m``, ``probe_err_T_K`` and ``probe_err_V``
-its probe-history differences (K, and relative to omega R1); ``compare_note`` says why a row has
-no errors (failed, or not comparable with the reference)."""
-_DIFFERENCE_KEYS = {"rel_err_V": "max_rel_dV", "rel_err_T": "max_rel_dT", "err_points_m": "max_dpoints_m",
-                    "probe_err_T_K": "probe_max_dT_K", "probe_err_V": "probe_max_dV_over_omegaR1"}
+ERROR_COLUMNS = ("rel_err", "rel_err_V", "rel_err_T", "probe_rel_err_T", "probe_err_V", "probe_err_T_K",
+                 "err_points_m", "n_field_times", "n_probe_times", "compare_note")
+"""Errors against the reference (:func:`jaxanm.fsw.compare.differences`, at the times both runs
+recorded): ``rel_err_V`` and ``rel_err_T`` are its ``max_rel_dV`` and ``max_rel_dT`` (fields at
+the common saved times, relative to the reference's max |V| and max |T - T0| at each),
+``probe_rel_err_T`` its ``probe_rel_dT`` (T at the registration points, relative to the
+reference's largest |T - T0| there), ``probe_err_V`` its ``probe_max_dV_over_omegaR1`` and
+``probe_err_T_K`` its ``probe_max_dT_K``; ``rel_err`` (the Pareto plot's error) is the largest of
+the four relative errors that the scene has; ``err_points_m`` is ``max_dpoints_m``;
+``n_field_times`` and ``n_probe_times`` count the common times compared; ``compare_note`` says
+why a row has no errors (failed, or no common time with the reference)."""
+_DIFFERENCE_KEYS = {"rel_err_V": "max_rel_dV", "rel_err_T": "max_rel_dT", "probe_rel_err_T": "probe_rel_dT",
+                    "probe_err_V": "probe_max_dV_over_omegaR1", "probe_err_T_K": "probe_max_dT_K",
+                    "err_points_m": "max_dpoints_m", "n_field_times": "n_field_times",
+                    "n_probe_times": "n_probe_times"}
+_RELATIVE = ("rel_err_V", "rel_err_T", "probe_rel_err_T", "probe_err_V")
 
 
 def columns(keys, errors: bool = False) -> list[str]:
@@ -68,8 +74,8 @@ def add_errors(rows: list[dict], reference_dir, sweep_dir) -> list[dict]:
     """``rows`` with :data:`ERROR_COLUMNS` against the run in ``reference_dir``.
 
     Each row's run is read from its ``dir`` (relative to ``sweep_dir``).  A failed row, or one
-    whose run cannot be compared with the reference (other saved times or step count), gets
-    NaN errors and the reason in ``compare_note``.
+    whose run cannot be compared with the reference (no common time), gets NaN errors and the
+    reason in ``compare_note``.
     """
     reference = load_run(reference_dir)
     out = []
@@ -84,13 +90,43 @@ def add_errors(rows: list[dict], reference_dir, sweep_dir) -> list[dict]:
             except (OSError, ValueError) as exc:
                 errors["compare_note"] = " ".join(str(exc).split())
             else:
-                errors.update({col: d[key] for col, key in _DIFFERENCE_KEYS.items()})
-                # NaN only for a field the reference lacks: a finished run's own fields are finite
-                # (integrate raises NonFiniteError on a non-finite accepted state)
-                present = [e for e in (d["max_rel_dV"], d["max_rel_dT"]) if not math.isnan(e)]
-                errors["rel_err"] = max(present) if present else math.nan
+                errors.update(error_columns(d))
         out.append({**row, **errors})
     return out
+
+
+def error_columns(d: dict) -> dict:
+    """The :data:`ERROR_COLUMNS` (but ``compare_note``) of the measures ``d`` of
+    :func:`jaxanm.fsw.compare.differences` (or of a Richardson estimate: the same keys)."""
+    errors = {col: d[key] for col, key in _DIFFERENCE_KEYS.items()}
+    # NaN only for a field the reference lacks: a finished run's own fields are finite
+    # (integrate raises NonFiniteError on a non-finite accepted state)
+    present = [errors[c] for c in _RELATIVE if not math.isnan(errors[c])]
+    errors["rel_err"] = max(present) if present else math.nan
+    return errors
+
+
+def read_table(path) -> list[dict]:
+    """The rows of a results table written by :func:`write_table`, cells back to Python values
+    (numbers, booleans, JSON lists; empty cells dropped)."""
+    with open(path, newline="", encoding="utf-8") as f:
+        return [{k: _value(v) for k, v in row.items() if v != ""} for row in csv.DictReader(f)]
+
+
+def _value(cell: str):
+    """A CSV cell as the value :func:`_cell` wrote (text that is no number stays text)."""
+    if cell in ("True", "False"):
+        return cell == "True"
+    if cell.startswith("["):
+        return json.loads(cell)
+    try:
+        return int(cell)
+    except ValueError:
+        pass
+    try:
+        return float(cell)
+    except ValueError:
+        return cell
 
 
 def _cell(value):

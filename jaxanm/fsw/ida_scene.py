@@ -1,0 +1,105 @@
+"""IDA on an FSW scene: the external adaptive baseline, with the results of a ``jaxanm run``.
+
+:func:`run_ida` integrates a fixed-point scene's residual (``tracers`` or no motion) with
+SUNDIALS IDA (:func:`jaxanm.ida.integrate_ida`: variable-order BDF, the same residual and
+coloured sparse Jacobian as the implicit-Euler solvers) and returns an
+:class:`~jaxanm.fsw.simulate.FSWResult`, so that ``jaxanm.fsw.output.write_outputs`` writes the
+same files as ``jaxanm run --out`` and errors are measured by the same
+:func:`jaxanm.fsw.compare.differences`.  What differs from :func:`jaxanm.fsw.simulate.run`:
+
+- IDA's outputs are the scene's save times t > 0 (``time.save`` and ``t_end``), where it ends
+  a step exactly (no interpolation); the probe history holds t = 0 and those times only, not
+  every internal step.  Compare it with other runs at those times (``time.save``).
+- The registration points are the plate points nearest the scene's probe positions, as in
+  :func:`~jaxanm.fsw.simulate.run` on fixed points (the same rule, restated in
+  :func:`probe_points`).
+- No tracers: advecting them needs the flow between the outputs (``tracers`` is None, and the
+  mixing figures are skipped).
+- ``stats`` is a :class:`jaxanm.Stats`: ``time_steps`` IDA's internal steps,
+  ``factorizations`` and ``jacobian_evaluations`` its Jacobians (each one SuperLU_MT
+  factorisation), ``newton_iterations`` its linear solves, ``wall_time_s`` the whole call
+  (consistent start and compilation included) split into ``jacobian`` and ``other`` (IDA's own
+  linear algebra, the residuals and the consistent start, which the wheel does not time apart;
+  :class:`jaxanm.ida.IDAStats` is kept as ``result.solver["ida_stats"]``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+import jaxanm
+
+from .geometry import PLATE, evaluate_stencils
+from .model import discretise
+from .scene import Scene
+from .simulate import FSWResult
+
+__all__ = ["IDA_DEFAULTS", "probe_points", "run_ida"]
+
+IDA_DEFAULTS = {"rtol": 1e-6, "max_order": 5}
+"""IDA settings of a run (:func:`jaxanm.ida.integrate_ida`); ``atol`` (relative to each unknown's
+scale: omega R1 for u, v, T0 for T, as ``rtol`` is to its value) defaults to ``rtol``."""
+
+
+def probe_points(scene: Scene, cloud) -> dict:
+    """``{probe name: index of the plate point nearest its position}`` on a fixed cloud."""
+    plate = np.flatnonzero(cloud.kind == PLATE)
+    return {p.name: int(plate[np.argmin(np.hypot(*(cloud.points[plate] - (p.x, p.y)).T))]) for p in scene.probes}
+
+
+def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None = None,
+            max_order: int = IDA_DEFAULTS["max_order"]) -> FSWResult:
+    """Integrate ``scene`` over [0, t_end] with IDA; its fields and probes at the save times.
+
+    ``atol`` defaults to ``rtol`` (:data:`IDA_DEFAULTS`).
+
+    Raises :class:`jaxanm.InputError` for a Lagrangian scene (its points move between steps,
+    so its step residual is no DAE; :mod:`jaxanm.ida`) and for bad tolerances;
+    :class:`jaxanm.ida.IDAFailure` when IDA stops early.
+    """
+    from jaxanm.ida import integrate_ida
+
+    if scene.has("lagrangian"):
+        raise jaxanm.InputError(f"scene {scene.name!r} is Lagrangian: IDA needs fixed points (its points move "
+                                "between steps, so the step residual is no DAE); drop 'lagrangian' from its "
+                                "effects (add 'tracers' for the mixing picture) or use an implicit-Euler solver")
+    atol = rtol if atol is None else atol
+    cloud, st, model, params, x0 = discretise(scene)
+    times = np.array([t for t in scene.time.save_times if t > 0], dtype=np.float64)
+    with jaxanm.float64():
+        sol = integrate_ida(model.residual, x0, params, t0=0.0, t_out=times, rtol=float(rtol), atol=float(atol),
+                            max_order=int(max_order), scale=model.scale(), sparsity=model.sparsity)
+    col = {f: i for i, f in enumerate(model.fields)}
+    n = cloud.points.shape[0]
+    vals = np.concatenate([model.initial_values(cloud.points)[None],
+                           np.array([model.values(x, st) for x in sol.xs])])  # (S, N, F)
+
+    def field(name: str, v: np.ndarray) -> np.ndarray:
+        if name in col:
+            return v[..., col[name]]
+        return np.full(v.shape[:-1], scene.thermal.T0 if name == "T" else 0.0)
+
+    u, v, T = (field(k, vals) for k in ("u", "v", "T"))
+    t_saved = np.concatenate([[0.0], sol.ts])
+    probes = {"t": t_saved}
+    for name, i in probe_points(scene, cloud).items():
+        probes[name] = {"x": np.full(t_saved.size, cloud.points[i, 0]), "y": np.full(t_saved.size, cloud.points[i, 1]),
+                        "u": u[:, i], "v": v[:, i], "T": T[:, i]}
+    sections = {"t": t_saved}
+    xs = [x0, *sol.xs]
+    for sec in scene.sections:
+        targets = np.linspace(sec.start, sec.end, sec.samples)
+        at = evaluate_stencils(cloud.points, cloud.n_tool, scene.geometry, targets, derivatives=False)
+        values = np.array([model.values(x, at) for x in xs])
+        sections[sec.name] = {"x": targets[:, 0], "y": targets[:, 1], "s": np.hypot(*(targets - targets[0]).T),
+                              **{k: field(k, values) for k in ("u", "v", "T")}}
+    s = sol.stats
+    stats = jaxanm.Stats(factorizations=s.jacobian_evaluations, jacobian_evaluations=s.jacobian_evaluations,
+                         time_steps=s.steps, residual_evaluations=s.residual_evaluations,
+                         newton_iterations=s.linear_solves)
+    stats.wall_time["jacobian"] = s.wall_time["jacobian"]
+    stats.close(s.wall_s)
+    solver = {"rtol": float(rtol), "atol": float(atol), "max_order": int(max_order), "ida_stats": s.summary()}
+    return FSWResult(scene=scene, t=t_saved, points=np.repeat(cloud.points[None], t_saved.size, axis=0),
+                     u=u, v=v, T=T, material=cloud.material.copy(), probes=probes, sections=sections,
+                     stats=stats, solver=solver, tracers=None)
