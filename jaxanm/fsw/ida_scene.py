@@ -13,8 +13,8 @@ same files as ``jaxanm run --out`` and errors are measured by the same
 - The registration points are the plate points nearest the scene's probe positions, as in
   :func:`~jaxanm.fsw.simulate.run` on fixed points (the same rule, restated in
   :func:`probe_points`).
-- No tracers: advecting them needs the flow between the outputs (``tracers`` is None, and the
-  mixing figures are skipped).
+- No tracers: advecting them needs the flow between the outputs (``tracers`` is None; the
+  mixing figure then shows the fixed points, i.e. no mixing: read it from an implicit-Euler run).
 - ``stats`` is a :class:`jaxanm.Stats`: ``time_steps`` IDA's internal steps,
   ``factorizations`` and ``jacobian_evaluations`` its Jacobians (each one SuperLU_MT
   factorisation), ``newton_iterations`` its linear solves, ``wall_time_s`` the whole call
