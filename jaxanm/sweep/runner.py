@@ -80,7 +80,8 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
         A tqdm bar over the tasks.
     reference : path, optional
         Output directory of the run the errors are measured against; default the grid's
-        ``reference`` task.  Without either, the table has no errors and there is no plot.
+        ``reference`` task or its Richardson reference (whose three runs still run when this is
+        given).  Without any, the table has no errors and there is no plot.
     compile_cache : bool, optional
         Keep compiled XLA code on disk in the workers (default: unless ``JAXANM_COMPILE_CACHE=0``,
         :mod:`jaxanm.compile_cache`).
