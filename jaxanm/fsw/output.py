@@ -137,7 +137,7 @@ def spatial_accuracy_lines(block: dict | None) -> list[str]:
     lines = []
     if "shear_band_points" in block:
         lines.append(f"shear band at the tool edge: {block['shear_band_width_m'] * 1e3:.3g} mm wide, "
-                     f"{block['shear_band_points']:.2g} points across (radial spacing "
+                     f"{block['shear_band_points']:.2f} points across (radial spacing "
                      f"{block['edge_spacing_m'] * 1e3:.3g} mm there)")
     err = block.get("rise_error")
     if err:
