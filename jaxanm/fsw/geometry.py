@@ -15,6 +15,14 @@ conditions (the model's rows: equal temperature, equal heat flux, sticking veloc
 
 Points are ordered ``[TOOL, TOOL_EDGE | PLATE_EDGE, PLATE, RING]``: the tool subdomain is the
 index range ``[0, n_tool)``, the plate ``[n_tool, N)``.
+
+Layouts (:class:`~jaxanm.fsw.scene.Geometry`): ``polar`` and ``grid`` have one spacing ``dr``
+and one MLS influence radius ``h_factor * dr``.  ``graded`` has rings whose spacing grows from
+``dr`` at the tool edge (across the shear band) to ``dr_far`` (:func:`spacing`), and each
+point's influence radius is ``h_factor`` times the spacing at its radius (:func:`jaxanm.mls`
+takes one radius per evaluation point and scales each stencil's coordinates by it; the
+neighbour search and its Verlet lists use the largest radius plus the skin, so they hold for
+any radii up to it).  Targets (probes, sections) get the radius of their position.
 """
 
 from __future__ import annotations
@@ -28,7 +36,7 @@ from .. import mls
 from .._x64 import entry_point
 from .scene import Geometry
 
-__all__ = ["Cloud", "build_cloud", "build_stencils", "edge_spacing", "evaluate_stencils", "neighbour_list",
+__all__ = ["Cloud", "build_cloud", "build_stencils", "edge_spacing", "evaluate_stencils", "neighbour_list", "spacing",
            "TOOL", "TOOL_EDGE", "PLATE_EDGE", "PLATE", "RING"]
 
 TOOL, TOOL_EDGE, PLATE_EDGE, PLATE, RING = range(5)
@@ -92,20 +100,80 @@ def _grid_interior(g: Geometry) -> tuple[np.ndarray, np.ndarray]:
     return tool, plate
 
 
+def _gaps(length: float, g: Geometry, centre: bool) -> np.ndarray:
+    """Radial gaps of the graded layout over ``length`` from r = R1, outwards to R2 or (with
+    ``centre``) inwards to the centre point.  Outwards: ``dr`` across the fine zone ``band``,
+    then each gap ``grading`` times the previous, up to ``dr_far``; inwards the grading starts
+    at R1 (the tool turns rigidly and its temperature is smooth: no fine zone).  The graded
+    gaps are then scaled by one factor (within about ``grading``) so that all sum to
+    ``length`` exactly; the fine zone keeps ``dr``."""
+    fine = 0 if centre else round(g.band / g.dr)
+    gaps = [g.dr] * fine
+    last, total = g.dr, g.dr * fine
+    while total < length * (1 - 1e-9):
+        last = min(g.dr_far, last * g.grading)
+        gaps.append(last)
+        total += last
+    # drop the last gap if the total then comes closer to the length
+    if len(gaps) > fine + 1 and abs(total - gaps[-1] - length) < abs(total - length):
+        total -= gaps.pop()
+    gaps = np.array(gaps)
+    graded = min(fine, len(gaps) - 1)
+    gaps[graded:] *= (length - gaps[:graded].sum()) / gaps[graded:].sum()
+    return gaps
+
+
+def _graded_rings(g: Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ring radii and spacings of the graded layout: tool side ``(r_tool, d_tool)`` from R1
+    inwards (ending at the centre, radius 0) and plate side ``(r_plate, d_plate)`` from R1 to
+    R2.  A ring's spacing is the larger of its two radial gaps (its points are that far apart
+    along it too: the MLS support ``h_factor`` times it holds both directions)."""
+    out = []
+    for length, sign in ((g.R1, -1.0), (g.R2 - g.R1, 1.0)):
+        gaps = _gaps(length, g, centre=sign < 0)
+        r = g.R1 + sign * np.concatenate([[0.0], np.cumsum(gaps)])
+        r[-1] = 0.0 if sign < 0 else g.R2
+        d = np.maximum(np.concatenate([gaps, gaps[-1:]]), np.concatenate([gaps[:1], gaps]))
+        out += [r, d]
+    return tuple(out)
+
+
+def spacing(g: Geometry, r: np.ndarray, tool: np.ndarray) -> np.ndarray | float:
+    """The layout's point spacing at radii ``r`` (m), on the tool side where ``tool``: ``dr``
+    for the polar and grid layouts (a float: one influence radius for the whole cloud), the
+    graded layout's ring spacing interpolated linearly in r between its rings otherwise."""
+    if g.layout != "graded":
+        return g.dr
+    r_t, d_t, r_p, d_p = _graded_rings(g)
+    r = np.asarray(r, dtype=np.float64)
+    return np.where(tool, np.interp(r, r_t[::-1], d_t[::-1]), np.interp(r, r_p, d_p))
+
+
 def edge_spacing(g: Geometry) -> float:
     """Radial point spacing (m) on the plate side of the tool edge, what resolves the shear band
     there: the ring spacing ``(R2 - R1) / round((R2 - R1) / dr)`` of the polar layout, ``dr``
-    for the grid (whose points nearest r = R1 lie between dr/2 and about 1.2 dr from it)."""
+    for the grid (whose points nearest r = R1 lie between dr/2 and about 1.2 dr from it) and
+    the graded layout (its fine zone's spacing)."""
     if g.layout == "polar":
         return (g.R2 - g.R1) / round((g.R2 - g.R1) / g.dr)
     return g.dr
 
 
+def _graded_interior(g: Geometry) -> tuple[np.ndarray, np.ndarray]:
+    """Tool interior (rings and centre) and plate interior rings of the graded layout."""
+    r_t, d_t, r_p, d_p = _graded_rings(g)
+    tool = [np.zeros((1, 2))] + [_ring(r, d) for r, d in zip(r_t[-2:0:-1], d_t[-2:0:-1])]
+    plate = [_ring(r, d) for r, d in zip(r_p[1:-1], d_p[1:-1])]
+    return np.concatenate(tool), np.concatenate(plate) if plate else np.zeros((0, 2))
+
+
 def build_cloud(g: Geometry) -> Cloud:
-    """The point cloud of the scene geometry (layout ``polar`` or ``grid``, see :class:`Geometry`)."""
-    tool, plate = _polar_interior(g) if g.layout == "polar" else _grid_interior(g)
+    """The point cloud of the scene geometry (layout ``polar``, ``grid`` or ``graded``, see
+    :class:`Geometry`)."""
+    interior = {"polar": _polar_interior, "grid": _grid_interior, "graded": _graded_interior}[g.layout]
+    tool, plate = interior(g)
     edge = _ring(g.R1, g.dr)
-    ring = _ring(g.R2, g.dr)
+    ring = _ring(g.R2, g.dr if g.layout != "graded" else _graded_rings(g)[3][-1])
     parts = [(tool, TOOL), (edge, TOOL_EDGE), (edge, PLATE_EDGE), (plate, PLATE), (ring, RING)]
     points = np.concatenate([p for p, _ in parts])
     kind = np.concatenate([np.full(len(p), k, dtype=np.int32) for p, k in parts])
@@ -132,7 +200,17 @@ def _apart(points: np.ndarray, n_tool: int, g: Geometry) -> np.ndarray:
 
 def _shift(g: Geometry) -> float:
     """Distance the tool subdomain is moved: beyond the disc and any influence radius."""
-    return 4.0 * (g.R2 + g.h_factor * g.dr)
+    return 4.0 * (g.R2 + g.h_factor * max(g.dr, g.dr_far))
+
+
+def _radius(g: Geometry, points: np.ndarray, n_tool: int):
+    """Influence radius of each point ``h_factor`` times :func:`spacing` (a float for the
+    uniform layouts, one per point for the graded one, tool ``[0, n_tool)``)."""
+    if g.layout != "graded":
+        return g.h_factor * g.dr
+    points = np.asarray(points, dtype=np.float64)
+    tool = np.arange(len(points)) < n_tool
+    return g.h_factor * spacing(g, np.hypot(points[:, 0], points[:, 1]), tool)
 
 
 @entry_point
@@ -145,7 +223,7 @@ def build_stencils(points: np.ndarray, n_tool: int, g: Geometry, m_max: int | No
     ``neighbours`` (from :func:`neighbour_list`) carries the neighbour candidates from one
     rebuild of a moving cloud to the next.
     """
-    return mls.build_stencils(_apart(points, n_tool, g), g.h_factor * g.dr, m_max=m_max, c=g.c, q=g.q,
+    return mls.build_stencils(_apart(points, n_tool, g), _radius(g, points, n_tool), m_max=m_max, c=g.c, q=g.q,
                               neighbours=neighbours)
 
 
@@ -171,6 +249,8 @@ def evaluate_stencils(points: np.ndarray, n_tool: int, g: Geometry, targets: np.
     that move with the cloud.
     """
     targets = np.array(targets, dtype=np.float64).reshape(-1, 2)
-    targets[np.hypot(targets[:, 0], targets[:, 1]) < g.R1, 0] += _shift(g)
-    return mls.evaluate_at(_apart(points, n_tool, g), g.h_factor * g.dr, targets, c=g.c, q=g.q,
+    r = np.hypot(targets[:, 0], targets[:, 1])
+    h = g.h_factor * spacing(g, r, r < g.R1)
+    targets[r < g.R1, 0] += _shift(g)
+    return mls.evaluate_at(_apart(points, n_tool, g), h, targets, c=g.c, q=g.q,
                            derivatives=derivatives, neighbours=neighbours)
