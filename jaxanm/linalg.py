@@ -36,24 +36,71 @@ from .stats import Stats
 # (docs/notes/sparse_lu_at_scale.md), non-zeros of L + U, symmetric mode against MMD_ATA:
 # 1.27e6 / 1.22e6 at dr (2643 unknowns), 15.8e6 / 8.7e6 at dr/2 (10 107), 246e6 / 58e6 and
 # 918 s / 9 s at dr/4 (39 519).  So the symmetric mode is used up to SYMMETRIC_MAX_UNKNOWNS,
-# between the sizes where it was measured to win and to lose, and MMD_ATA with partial
-# pivoting above.
+# between the sizes where it was measured to win and to lose, and a nested-dissection ordering
+# above (below).
+#
+# Nested dissection is the standard fill-reducing ordering for matrices of 2D meshes (fill
+# O(N log N), factorisation O(N^1.5), against minimum degree's worse growth), and a point cloud
+# with MLS stencils is one.  METIS (pymetis wheel) orders the graph of A + A^T; SuperLU then
+# factorises the symmetrically permuted matrix in symmetric mode, keeping the diagonal pivot
+# unless it is below LARGE_DIAG_PIVOT_THRESH of its column.  fsw_tracers near rest and
+# fsw_paper's first tangent, non-zeros of L + U (docs/notes/sparse_lu_at_scale.md):
+# dr/2: 6.8e6 against 8.7e6 for MMD_ATA with partial pivoting; dr/4: 48.5e6 / 50.8e6 against
+# 58.1e6 / 57.3e6.  Threshold 0.01 (HSL MA57's default): 0.1 keeps more diagonal pivots off
+# and fills more than MMD_ATA (71e6 at dr/4), 0.001 fills least (35e6) but its relative
+# residuals grow to 1e-15 (1e-16 at 0.01, 1e-18 with partial pivoting): element growth.
 SYMMETRIC_MAX_UNKNOWNS = 5000
 PERMC_SPEC = "MMD_AT_PLUS_A"
 DIAG_PIVOT_THRESH = 0.1
 SUPERLU_OPTIONS = {"SymmetricMode": True}
-LARGE_PERMC_SPEC = "MMD_ATA"
+LARGE_DIAG_PIVOT_THRESH = 0.01
 
 
-def sparse_lu(matrix) -> scipy.sparse.linalg.SuperLU:
-    """SuperLU factors of a square sparse matrix: up to :data:`SYMMETRIC_MAX_UNKNOWNS`
-    unknowns, ordering :data:`PERMC_SPEC` with threshold :data:`DIAG_PIVOT_THRESH` and options
-    :data:`SUPERLU_OPTIONS`; above, :data:`LARGE_PERMC_SPEC` with partial pivoting."""
+def sparse_lu(matrix):
+    """SuperLU factors of a square sparse matrix, an object with ``solve(b)`` (``b`` of shape
+    (n,) or (n, k)) and the factors' ``L``, ``U``: up to :data:`SYMMETRIC_MAX_UNKNOWNS` unknowns,
+    ordering :data:`PERMC_SPEC` with threshold :data:`DIAG_PIVOT_THRESH` and options
+    :data:`SUPERLU_OPTIONS`; above, a nested-dissection ordering (:class:`NestedDissectionLU`)."""
     matrix = scipy.sparse.csc_matrix(matrix)
     if matrix.shape[0] > SYMMETRIC_MAX_UNKNOWNS:
-        return scipy.sparse.linalg.splu(matrix, permc_spec=LARGE_PERMC_SPEC)
+        return NestedDissectionLU(matrix)
     return scipy.sparse.linalg.splu(matrix, permc_spec=PERMC_SPEC,
                                     diag_pivot_thresh=DIAG_PIVOT_THRESH, options=dict(SUPERLU_OPTIONS))
+
+
+def nested_dissection(matrix) -> np.ndarray:
+    """METIS nested-dissection ordering of the graph of ``matrix + matrix^T``: ``perm`` such
+    that ``matrix[perm][:, perm]`` has little fill in its LU factors."""
+    import pymetis  # imported here: only clouds above SYMMETRIC_MAX_UNKNOWNS unknowns need it
+
+    graph = scipy.sparse.csr_matrix(abs(matrix) + abs(matrix.T))
+    graph.setdiag(0)
+    graph.eliminate_zeros()
+    # METIS_NodeND: row i of the permuted matrix is row perm[i] of the original (its iperm,
+    # the other array returned, is the inverse: gathering by it fills 12x more at dr/2)
+    perm, _ = pymetis.nested_dissection(pymetis.CSRAdjacency(graph.indptr, graph.indices))
+    return np.asarray(perm, dtype=np.int64)
+
+
+class NestedDissectionLU:
+    """SuperLU factors of ``P A P^T``, P a :func:`nested_dissection` ordering, in symmetric mode
+    with diagonal pivot threshold :data:`LARGE_DIAG_PIVOT_THRESH`; solves ``A x = b``."""
+
+    def __init__(self, matrix):
+        self.perm = nested_dissection(matrix)
+        permuted = scipy.sparse.csc_matrix(matrix[self.perm][:, self.perm])
+        self._lu = scipy.sparse.linalg.splu(permuted, permc_spec="NATURAL",
+                                           diag_pivot_thresh=LARGE_DIAG_PIVOT_THRESH,
+                                           options={"SymmetricMode": True})
+        self.L, self.U = self._lu.L, self._lu.U
+        self.shape = matrix.shape
+
+    def solve(self, rhs) -> np.ndarray:
+        """``A^-1 rhs`` for ``rhs`` of shape (n,) or (n, k)."""
+        rhs = np.asarray(rhs, dtype=np.float64)
+        x = np.empty_like(rhs)
+        x[self.perm] = self._lu.solve(rhs[self.perm])
+        return x
 
 
 class Factorization:

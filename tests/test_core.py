@@ -311,19 +311,30 @@ def test_after_step_remap_changes_the_discretisation_without_changing_the_soluti
                          **{**kw, "t1": 0.02})
 
 
-@pytest.mark.parametrize("limit", [10**6, 10], ids=["symmetric-mode", "mmd-ata"])
-def test_sparse_lu_solves_in_both_orderings(limit, monkeypatch):
-    # the symmetric-mode ordering up to SYMMETRIC_MAX_UNKNOWNS unknowns, MMD_ATA with partial
-    # pivoting above: both must solve a non-symmetric stencil matrix to backward-stable accuracy
+@pytest.mark.parametrize("dominant", ["diagonal", "off-diagonal"])
+@pytest.mark.parametrize("limit", [10**6, 10], ids=["symmetric-mode", "nested-dissection"])
+def test_sparse_lu_solves_in_both_orderings(limit, dominant, monkeypatch):
+    # the symmetric-mode ordering up to SYMMETRIC_MAX_UNKNOWNS unknowns, nested dissection
+    # above: both must solve a non-symmetric sparse matrix to backward-stable accuracy, for one
+    # or several right-hand sides, also where every pivot has to leave the diagonal (the large
+    # entries on a cyclic shift, the diagonal only random fill)
     from jaxanm import linalg
 
     monkeypatch.setattr(linalg, "SYMMETRIC_MAX_UNKNOWNS", limit)
     n = 60
     rng = np.random.default_rng(5)
-    a = scipy.sparse.random(n, n, density=0.08, random_state=rng) + 4.0 * scipy.sparse.identity(n)
-    b = rng.standard_normal(n)
-    x = linalg.sparse_lu(a).solve(b)
-    # LU with pivoting on a diagonally dominant matrix (growth factor ~1) is backward stable:
-    # residual ~ n eps |A|_inf |x|_inf, with a factor 10 for the constant of the bound
+    big = scipy.sparse.identity(n) if dominant == "diagonal" else scipy.sparse.eye(n, k=1) + scipy.sparse.eye(n, k=1 - n)
+    a = scipy.sparse.random(n, n, density=0.08, random_state=rng) + 4.0 * big
+    b = rng.standard_normal((n, 3))
+    lu = linalg.sparse_lu(a)
+    assert isinstance(lu, linalg.NestedDissectionLU) == (limit < n)
+    x = lu.solve(b)
+    assert x.shape == b.shape
+    # LU with (threshold) pivoting on a matrix whose large entries form a permutation (the
+    # pivots taken, growth factor ~1) is backward stable: residual ~ n eps |A|_inf |x|_inf,
+    # with a factor 10 for the constant of the bound
     norm_a = abs(a).sum(axis=1).max()
     assert np.abs(a @ x - b).max() <= 10 * n * np.finfo(float).eps * norm_a * np.abs(x).max()
+    x1 = lu.solve(b[:, 1])  # one right-hand side: the same bound
+    assert x1.shape == (n,)
+    assert np.abs(a @ x1 - b[:, 1]).max() <= 10 * n * np.finfo(float).eps * norm_a * np.abs(x1).max()
