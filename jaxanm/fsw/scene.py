@@ -219,10 +219,11 @@ class Geometry(_Section):
     once) each ring gap is ``grading`` times the previous up to ``dr_far``; every ring holds
     about ``2 pi r`` over its spacing points, and each point's MLS influence radius is
     ``h_factor`` times its ring's spacing (``band``, ``dr_far`` and ``grading`` are used by
-    this layout only).  fsw_tracers' physics on 1501 graded points (dr = 0.1 mm, band 0.2 mm,
-    dr_far 0.375 mm) errs in the temperature rise by 5.7 %, against 13 % on 1727 and 10 % on
-    3369 uniform points (scene ``fsw_graded``, docs/notes/spatial_accuracy.md); it is
-    validated on fixed points only, and a scene with ``lagrangian`` on it is refused.
+    this layout only).  fsw_tracers' physics on 1603 graded points (dr = 0.085 mm, band 0.17
+    mm, dr_far 0.375 mm; scene ``fsw_graded``) errs in the temperature rise by 4.4-4.7 % over
+    0.05-0.3 s, against 12-14 % on 1727 and 9-11 % on 3369 uniform points
+    (docs/notes/spatial_accuracy.md); it is validated on fixed points only, and a scene with
+    ``lagrangian`` on it is refused.
 
     ``rezone`` (used by the ``lagrangian`` effect only; 0 = never): the plate points are
     re-seeded at their initial layout, and the state refitted there, once some plate point's
