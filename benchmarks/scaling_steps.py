@@ -176,25 +176,35 @@ def main(argv=None) -> None:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds before a run is stopped")
     ap.add_argument("--out", default=str(ROOT / "docs" / "scaling_steps"))
+    ap.add_argument("--report-only", action="store_true",
+                    help="rebuild the exponents, table and plot from the runs already in OUT.json (e.g. after stopping)")
     ap.add_argument("--worker", nargs=3, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker is not None:
         worker(float(args.worker[0]), args.worker[1], int(args.worker[2]))
+        return
+    out = pathlib.Path(args.out)
+    if args.report_only:
+        report(json.loads(out.with_suffix(".json").read_text()), out)
         return
     from jaxanm.fsw import load_scene
 
     dr = load_scene("fsw_paper").geometry.dr
     result = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "cpus": os.cpu_count(),
               "argv": sys.argv[1:] if argv is None else list(argv), "runs": []}
-    out = pathlib.Path(args.out)
     for d in args.divisors:
         for solver in args.solvers:
             row = measure(dr / d, solver, args.steps, args.timeout)
             result["runs"].append(row)
             print({k: v for k, v in row.items() if k != "stamps"}, flush=True)
             out.with_suffix(".json").write_text(json.dumps(result, indent=1))
+    report(result, out)
+
+
+def report(result: dict, out: pathlib.Path) -> None:
+    """Fit the exponents over the finished runs; write OUT.json, OUT.md and OUT.png."""
     result["exponents"] = {}
-    for solver in args.solvers:
+    for solver in sorted({r["solver"] for r in result["runs"]}):
         rows = [r for r in result["runs"] if r["solver"] == solver and r.get("N") and not r["timed_out"]]
         result["exponents"][solver] = {k: fit_exponent([r["N"] for r in rows], [r.get(k, np.nan) for r in rows])
                                        for k in ("median_step_s", "mean_step_s", "rss_peak_mb")}
