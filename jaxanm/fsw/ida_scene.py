@@ -11,8 +11,7 @@ same files as ``jaxanm run --out`` and errors are measured by the same
   a step exactly (no interpolation); the probe history holds t = 0 and those times only, not
   every internal step.  Compare it with other runs at those times (``time.save``).
 - The registration points are the plate points nearest the scene's probe positions, as in
-  :func:`~jaxanm.fsw.simulate.run` on fixed points (the same rule, restated in
-  :func:`probe_points`).
+  :func:`~jaxanm.fsw.simulate.run` on fixed points (:func:`~jaxanm.fsw.simulate.probe_points`).
 - No tracers: advecting them needs the flow between the outputs (``tracers`` is None; the
   mixing figure then shows the fixed points, i.e. no mixing: read it from an implicit-Euler run).
 - ``stats`` is a :class:`jaxanm.Stats`: ``time_steps`` IDA's internal steps,
@@ -29,22 +28,16 @@ import numpy as np
 
 import jaxanm
 
-from .geometry import PLATE, evaluate_stencils
+from .geometry import evaluate_stencils
 from .model import discretise
 from .scene import Scene
-from .simulate import FSWResult
+from .simulate import FSWResult, probe_points
 
-__all__ = ["IDA_DEFAULTS", "probe_points", "run_ida"]
+__all__ = ["IDA_DEFAULTS", "run_ida"]
 
 IDA_DEFAULTS = {"rtol": 1e-6, "max_order": 5}
 """IDA settings of a run (:func:`jaxanm.ida.integrate_ida`); ``atol`` (relative to each unknown's
 scale: omega R1 for u, v, T0 for T, as ``rtol`` is to its value) defaults to ``rtol``."""
-
-
-def probe_points(scene: Scene, cloud) -> dict:
-    """``{probe name: index of the plate point nearest its position}`` on a fixed cloud."""
-    plate = np.flatnonzero(cloud.kind == PLATE)
-    return {p.name: int(plate[np.argmin(np.hypot(*(cloud.points[plate] - (p.x, p.y)).T))]) for p in scene.probes}
 
 
 def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None = None,

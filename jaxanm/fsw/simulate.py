@@ -113,6 +113,13 @@ def _full_values(model: Model, values: np.ndarray) -> dict:
             "T": cols.get("T", np.full(values.shape[0], model.scene.thermal.T0))}
 
 
+def probe_points(scene: Scene, cloud) -> dict:
+    """``{probe name: index of the plate point nearest its position}``: the registration points
+    of a run (and of :func:`jaxanm.fsw.ida_scene.run_ida`), chosen on the initial cloud."""
+    plate = np.flatnonzero(cloud.kind == PLATE)
+    return {p.name: int(plate[np.argmin(np.hypot(*(cloud.points[plate] - (p.x, p.y)).T))]) for p in scene.probes}
+
+
 def _nearest_spacing(points: np.ndarray) -> np.ndarray:
     """Distance from each point to its nearest other point."""
     return cKDTree(points).query(points, 2)[0][:, 1]
@@ -129,9 +136,7 @@ class _Recorder:
         self.points = cloud.points.copy()
         self.width = stencils.index.shape[1]
         self.step, self.t = 0, 0.0
-        plate = np.flatnonzero(cloud.kind == PLATE)
-        self.probe_index = {p.name: int(plate[np.argmin(np.hypot(*(cloud.points[plate] - (p.x, p.y)).T))])
-                            for p in scene.probes}
+        self.probe_index = probe_points(scene, cloud)
         self.section_points = {s.name: np.linspace(s.start, s.end, s.samples) for s in scene.sections}
         self.probes = {"t": [], **{name: {k: [] for k in "xyuvT"} for name in self.probe_index}}
         self.saved = {"t": [], "points": [], "nodes": [], "u": [], "v": [], "T": []}
