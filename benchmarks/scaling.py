@@ -127,10 +127,12 @@ def counts_from(path: pathlib.Path, tol: float = 1e-6, order: int = 7) -> dict:
     return counts
 
 
-def fit_exponent(N, y) -> float:
-    """Least-squares slope of log y against log N."""
+def fit_exponent(N, y) -> float | None:
+    """Least-squares slope of log y against log N over the finite, positive y (None with fewer
+    than two such levels)."""
     N, y = np.asarray(N, float), np.asarray(y, float)
-    return float(np.polyfit(np.log(N), np.log(y), 1)[0])
+    keep = np.isfinite(y) & (y > 0)
+    return float(np.polyfit(np.log(N[keep]), np.log(y[keep]), 1)[0]) if keep.sum() >= 2 else None
 
 
 def main(argv=None) -> None:

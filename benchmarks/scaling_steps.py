@@ -38,6 +38,8 @@ import time
 import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from scaling import fit_exponent  # noqa: E402
 SOLVER_KINDS = {"anm": "anm", "mnewton": "modified_newton", "newton": "newton"}
 
 
@@ -107,13 +109,6 @@ def measure(dr: float, solver: str, steps: int, timeout: float) -> dict:
         row["median_step_s"] = float(np.median(walls[1:]))
         row["mean_step_s"] = float(np.mean(walls[1:]))
     return row
-
-
-def fit_exponent(N, y) -> float | None:
-    """Least-squares slope of log y against log N (None with fewer than two levels)."""
-    N, y = np.asarray(N, float), np.asarray(y, float)
-    keep = np.isfinite(y) & (y > 0)
-    return float(np.polyfit(np.log(N[keep]), np.log(y[keep]), 1)[0]) if keep.sum() >= 2 else None
 
 
 def markdown(result: dict) -> str:
