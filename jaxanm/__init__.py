@@ -15,7 +15,7 @@ from .jacobian import SparseJacobian, color_columns, detect_sparsity
 from .linalg import Factorization, factorize
 from .sensitivity import Sensitivities, sensitivities, value_and_grad
 from .series import taylor_coefficients
-from .solvers import ANM, ModifiedNewton, Newton, evaluate_series, validity_range
+from .solvers import ANM, ModifiedNewton, Newton, SolverState, StepSolver, evaluate_series, validity_range
 from .stats import Stats
 from .step_control import StepController
 
@@ -30,10 +30,12 @@ __all__ = [
     "Sensitivities",
     "SingularMatrixError",
     "Solution",
+    "SolverState",
     "SparseJacobian",
     "Stats",
     "StepController",
     "StepFailure",
+    "StepSolver",
     "color_columns",
     "detect_sparsity",
     "evaluate_series",

@@ -18,8 +18,7 @@ from ._x64 import entry_point
 from .checkpoint import read, sigterm_as_interrupt, to_host, write_atomic
 from .errors import InputError, NonFiniteError, StepFailure
 from .jacobian import detect_sparsity
-from .linalg import Factorization
-from .solvers import ANM, ModifiedNewton, Newton, Problem
+from .solvers import Problem, StepSolver
 from .stats import Stats
 from .step_control import StepController
 
@@ -75,8 +74,9 @@ def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_a
         raise InputError(f"dt must be > 0, got {dt!r}")
     if not t1 > t0:
         raise InputError(f"t1 must be > t0, got t0={t0!r}, t1={t1!r}")
-    if not isinstance(solver, (ANM, Newton, ModifiedNewton)):
-        raise InputError(f"solver must be jaxanm.ANM(...), jaxanm.Newton(...) or jaxanm.ModifiedNewton(...), got {solver!r}")
+    if not isinstance(solver, StepSolver):
+        raise InputError(f"solver must be jaxanm.ANM(...), jaxanm.Newton(...), jaxanm.ModifiedNewton(...) or another "
+                         f"jaxanm.StepSolver, got {solver!r}")
     scale = np.broadcast_to(np.asarray(1.0 if scale is None else scale, dtype=np.float64), x0.shape).copy()
     if not np.all(np.isfinite(scale) & (scale > 0)):
         raise InputError("scale must be positive and finite (a characteristic magnitude per unknown)")
@@ -165,8 +165,9 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     t0, t1, dt : float
         Time span and step; the last step is shortened to end exactly at t1.  With a
         ``controller``, ``dt`` is the first step's size.
-    solver : ANM | Newton | ModifiedNewton
-        Nonlinear step solver.
+    solver : StepSolver
+        Nonlinear step solver: ``ANM``, ``Newton``, ``ModifiedNewton`` or a user's subclass of
+        :class:`~jaxanm.StepSolver`.
     scale : float or array (n,)
         Characteristic magnitude of each unknown (series norms, Newton convergence test).
     jacobian : {"auto", "dense", "sparse"}
@@ -258,9 +259,10 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
             host_state[1](host)
     stats = run.stats
     previous_wall = stats.wall_time_s
-    stepper = solver.init(Problem(residual, scale, stats, jacobian, sparsity))
+    problem = Problem(residual, scale, stats, jacobian, sparsity)
+    state = solver.init(problem)
     if kstar is not None:
-        stepper.fact = Factorization(kstar)
+        state = solver.from_checkpoint(state, kstar)
         stats.resumes += 1
     saves = _save_steps(t0, dt, n_steps, save_every, save_at)
     save_times = sorted({float(v) for v in np.atleast_1d(save_at) if t0 < v < t1}) if save_at is not None else []
@@ -283,18 +285,24 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
             return advance(xm, t + h / 2, h / 2, step, depth + 1)
 
     def solve_step(x, t, h, step):
-        """One step of size h by the solver, its accepted state checked (see ``advance``)."""
+        """One step of size h by the solver, its accepted state checked (see ``advance``); the
+        solver's state moves on to the one it returned (or, if it failed, left to retry from)."""
+        nonlocal state
         # numpy scalars: a jnp scalar costs a device dispatch per conversion (13 % of a small step)
         t_new, h_new = np.float64(t + h), np.float64(h)
-        x_new = stepper.step(step, x, t_new, h_new, run.params)
-        r_new = stepper.accepted_residual()
+        try:
+            x_new, state = solver.step(state, step, x, t_new, h_new, run.params)
+        except StepFailure as failure:
+            state = solver.state_after_failure(state, failure)
+            raise
+        r_new = solver.accepted_residual(state)
         if r_new is None:
-            r_new = stepper.problem.residual(x_new, x, t_new, h_new, run.params)
+            r_new = problem.residual(x_new, x, t_new, h_new, run.params)
         r_norm = float(np.max(np.abs(r_new)))
         if not (np.isfinite(r_norm) and np.all(np.isfinite(x_new))):
             raise NonFiniteError(f"the accepted state has {int(np.sum(~np.isfinite(x_new)))} non-finite "
                                  "entries or a non-finite residual", step=step, t=t_new,
-                                 amax=stats.amax[-1] if stats.amax and stepper.reuses_kstar else None,
+                                 amax=stats.amax[-1] if stats.amax else None,
                                  residual_norm=r_norm)
         return x_new, r_norm
 
@@ -345,7 +353,7 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
 
     def save_checkpoint():
         stats.close(previous_wall + time.perf_counter() - start)
-        run.dump(checkpoint, fingerprint, getattr(stepper.fact, "matrix", None) if stepper.reuses_kstar else None,
+        run.dump(checkpoint, fingerprint, solver.to_checkpoint(state),
                  host=None if host_state is None else host_state[0]())
 
     def record(k, t_new, x_new, r_norm, saved):
@@ -466,7 +474,8 @@ class _RunState:
         self.observed = _observation(observe, t, x, params, self.observed)
 
     def dump(self, path, fingerprint: dict, kstar, host=None) -> None:
-        """Write the state, the current K* matrix and the caller's host state to a checkpoint file."""
+        """Write the state, what the solver stores of its state (``kstar``: the matrix of the K*
+        it carries, or None) and the caller's host state to a checkpoint file."""
         payload = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         payload.update(fingerprint=fingerprint, kstar=kstar, params=to_host(self.params), host_state=host)
         payload["ps"] = None if self.ps is None else [to_host(p) for p in self.ps]

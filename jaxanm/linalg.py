@@ -2,7 +2,8 @@
 
 A solver receives a :class:`Factorization` ("a factorised K*") and applies it as often as it
 likes; factorising is what the ANM saves, so every factorisation goes through
-:func:`factorize`, which counts it in the run's :class:`~jaxanm.stats.Stats`.
+:func:`factorize`, which counts it in the run's :class:`~jaxanm.stats.Stats`, and every solve
+with its factors counts and times itself there.
 """
 
 from __future__ import annotations
@@ -104,9 +105,14 @@ class NestedDissectionLU:
 
 
 class Factorization:
-    """LU factors of a square matrix: ``splu`` for sparse input, ``lu_factor`` for dense."""
+    """LU factors of a square matrix: ``splu`` for sparse input, ``lu_factor`` for dense.
 
-    def __init__(self, matrix):
+    With ``stats`` (a run's :class:`~jaxanm.stats.Stats`) every :meth:`solve` is timed there
+    as ``solve`` and counted in ``stats.solves``; making the factors is not counted here
+    (:func:`factorize` counts it).
+    """
+
+    def __init__(self, matrix, stats: Stats | None = None):
         if scipy.sparse.issparse(matrix):
             matrix = scipy.sparse.csc_matrix(matrix, dtype=np.float64)
             if not np.all(np.isfinite(matrix.data)):
@@ -131,15 +137,24 @@ class Factorization:
             self._solve = lambda b: scipy.linalg.lu_solve(lu_piv, b, check_finite=False)
         self.matrix = matrix  # kept so that a checkpoint can re-create these exact factors
         self.shape = matrix.shape
+        self.stats = stats
 
     def solve(self, rhs) -> np.ndarray:
-        """Solve ``K* x = rhs`` with the stored factors (host, float64)."""
-        return self._solve(np.asarray(rhs, dtype=np.float64))
+        """Solve ``K* x = rhs`` with the stored factors (host, float64); ``rhs`` of shape (n,)
+        or (n, k), counted as 1 or k solves."""
+        rhs = np.asarray(rhs, dtype=np.float64)
+        if self.stats is None:
+            return self._solve(rhs)
+        with self.stats.timer("solve"):
+            x = self._solve(rhs)
+        self.stats.solves += 1 if rhs.ndim == 1 else rhs.shape[1]
+        return x
 
 
 def factorize(matrix, stats: Stats) -> Factorization:
-    """Factorise ``matrix`` on the host, counting and timing it in ``stats``."""
+    """Factorise ``matrix`` on the host, counting and timing it in ``stats`` (where its
+    solves are then counted and timed too)."""
     with stats.timer("factorize"):
-        fact = Factorization(matrix)
+        fact = Factorization(matrix, stats)
     stats.factorizations += 1
     return fact

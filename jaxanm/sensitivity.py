@@ -60,7 +60,6 @@ from ._x64 import entry_point
 from .errors import InputError, StepFailure
 from .integrate import check_run_inputs, jacobian_kind, params_float64
 from .jacobian import detect_sparsity
-from .linalg import factorize
 from .solvers import Problem
 from .stats import Stats
 
@@ -292,22 +291,28 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
     if jacobian == "sparse" and sparsity is None:
         sparsity = detect_sparsity(residual, x0, x0, t0 + dt, dt, bound)
     stats, sst = Stats(), SensitivityStats()
-    stepper = solver.init(Problem(residual, scale, stats, jacobian, sparsity))
-    prob = stepper.problem
+    prob = Problem(residual, scale, stats, jacobian, sparsity)
+    state = solver.init(prob)
 
     def snorm(v):  # scaled 2-norm per column of a (P, n) block
         return np.linalg.norm(np.atleast_2d(v) / scale, axis=1)
 
     def refresh(x, x_old, t, h):
-        stepper.fact = factorize(prob.tangent(x, x_old, t, h, bound), stats)
+        """The Jacobian at ``x`` factorised and installed as the solver's K* (counted)."""
+        nonlocal state
+        state = solver.with_factorization(state, prob.factorize_at(x, x_old, t, h, bound))
         sst.extra_factorizations += 1
+
+    def kstar():
+        """The solver's factorised K*."""
+        return solver.factorization(state)
 
     def polish(x, x_old, t, h, k):
         """Chord iterations with the solver's K* until R(x) = 0 to round-off."""
         previous, refreshed = np.inf, False
         for _ in range(max_polish):
             r = prob.residual(x, x_old, t, h, bound)
-            dx = -stepper.fact.solve(r)
+            dx = -kstar().solve(r)
             size, ref = snorm(dx)[0], max(snorm(x)[0], np.finfo(float).tiny)
             if not np.isfinite(size):
                 raise StepFailure("polish correction is not finite", step=k, t=float(t))
@@ -332,11 +337,11 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
     def tangent(x, x_old, t, h, S_old_T, k):
         """Refinement ``S <- S + K*^-1 (b - J S)`` for the P columns at once."""
         b = -np.asarray(step_rhs(x, x_old, t, h, params, theta_j, S_old_T, basis))
-        S_T = stepper.fact.solve(b.T).T
+        S_T = kstar().solve(b.T).T
         rels, refreshed = [], False
         for _ in range(max_refine):
             res = b - np.asarray(jac_x(x, x_old, t, h, params, theta_j, S_T))
-            dS_T = stepper.fact.solve(res.T).T
+            dS_T = kstar().solve(res.T).T
             sst.refine_iterations += 1
             rel = float(np.max(snorm(dS_T) / np.maximum(snorm(S_T), np.finfo(float).tiny)))
             if not np.isfinite(rel):
@@ -353,17 +358,19 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
                                       step=k, t=float(t))
                 refresh(x, x_old, t, h)
                 refreshed, rels = True, []
-                S_T = stepper.fact.solve(b.T).T
+                S_T = kstar().solve(b.T).T
         raise StepFailure(f"sensitivity refinement did not converge in {max_refine} sweeps (last {rel:.3g})",
                           step=k, t=float(t))
 
     def one_step(x_old, S_old_T, t_old, h, k, depth):
         """A step of size h (halved on solver failure), polished, with its sensitivities."""
+        nonlocal state
         t_new = jnp.float64(t_old + h)
         tic = time.perf_counter()
         try:
-            x = stepper.step(k, x_old, t_new, jnp.float64(h), bound)
-        except StepFailure:
+            x, state = solver.step(state, k, x_old, t_new, jnp.float64(h), bound)
+        except StepFailure as failure:
+            state = solver.state_after_failure(state, failure)
             if depth >= max_dt_halvings:
                 raise
             stats.dt_halvings += 1

@@ -1,14 +1,16 @@
 """Nonlinear step solvers on one step residual: ANM (homotopy + jet series) and Newton.
 
-A solver is a small frozen options object (``ANM``, ``Newton``, ``ModifiedNewton``); at the
-start of a run it makes a *stepper* that owns the state carried across time steps (the
-factorised K* and whether it is fresh).  Every stepper sees the problem only through
-:class:`Problem`: residual evaluations, series evaluations, tangent matrices and
+A solver is a small frozen options object, a :class:`StepSolver` (``ANM``, ``Newton``,
+``ModifiedNewton``, or a user's subclass).  What it carries across time steps (the factorised
+K*) is a :class:`SolverState` value: ``init(problem)`` makes the first, and
+``step(state, ...)`` returns the solved state with a new one.  Every solver sees the problem
+only through :class:`Problem`: residual evaluations, series evaluations, tangent matrices and
 factorisations, all counted in the same :class:`~jaxanm.stats.Stats`.
 """
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import functools
 import warnings
@@ -251,7 +253,90 @@ def _check_count(name, field, value, minimum):
 
 
 @dataclasses.dataclass(frozen=True)
-class ANM:
+class SolverState:
+    """What a step solver carries from one time step to the next, as a value.
+
+    ``problem`` is the step problem the solver was made for (:meth:`StepSolver.init`),
+    ``factorization`` the factorised K* it holds (or None), ``accepted_residual`` the residual
+    at the state the last :meth:`StepSolver.step` returned when the solver evaluated it there
+    (the time loop then records it instead of evaluating it again), else None.  A state is
+    never changed in place: :meth:`StepSolver.step` returns a new one.  A solver that carries
+    more subclasses this (frozen) dataclass.
+    """
+
+    problem: Problem
+    factorization: Factorization | None = None
+    accepted_residual: np.ndarray | None = None
+
+
+class StepSolver(abc.ABC):
+    """Base class of the nonlinear step solvers that :func:`jaxanm.integrate` accepts.
+
+    A solver is a set of options; what it carries across time steps is a :class:`SolverState`
+    made by :meth:`init` and returned anew by every :meth:`step`, and nothing outside the
+    solver changes it except through the methods below.  To write a solver, subclass this
+    class and implement :meth:`step` (and :meth:`init` if the state carries more than a
+    factorisation); the :class:`Problem` in the state gives residuals, tangents and counted
+    factorisations.  ``reuses_factorization`` says whether the K* a state holds is carried to
+    the next step (and so stored in checkpoints).
+    """
+
+    reuses_factorization: bool = True
+
+    def init(self, problem: Problem) -> SolverState:
+        """The state at the start of a run: the problem, no factorisation yet."""
+        return SolverState(problem)
+
+    @abc.abstractmethod
+    def step(self, state: SolverState, step: int, x_old, t, dt, params) -> tuple[np.ndarray, SolverState]:
+        """Solve the time step ``R(x, x_old, t, dt, params) = 0`` from ``x_old``: ``(x, new state)``.
+
+        ``step`` is the time step's index (for messages).  A step that cannot be solved raises
+        :class:`StepFailure` (or :class:`NonFiniteError`), with the state to retry from
+        attached (:meth:`state_after_failure`) when it differs from ``state``.
+        """
+
+    def accepted_residual(self, state: SolverState) -> np.ndarray | None:
+        """The residual at the state the last :meth:`step` returned, if it evaluated it, else None."""
+        return state.accepted_residual
+
+    def factorization(self, state: SolverState) -> Factorization | None:
+        """The factorised K* the state holds (or None)."""
+        return state.factorization
+
+    def with_factorization(self, state: SolverState, factorization: Factorization) -> SolverState:
+        """``state`` with ``factorization`` as its K* (e.g. a Jacobian factorised by the caller)."""
+        return dataclasses.replace(state, factorization=factorization)
+
+    def state_after_failure(self, state: SolverState, failure: StepFailure) -> SolverState:
+        """The state to retry from after :meth:`step` from ``state`` raised ``failure``: the one
+        the failed step attached (e.g. holding the K* it factorised before failing, which a
+        retry then reuses), else ``state``."""
+        attached = getattr(failure, "solver_state", None)
+        return state if attached is None else attached
+
+    def to_checkpoint(self, state: SolverState):
+        """What a checkpoint stores of ``state``: the matrix of the K* carried to the next step,
+        or None (nothing carried)."""
+        if not self.reuses_factorization or state.factorization is None:
+            return None
+        return state.factorization.matrix
+
+    def from_checkpoint(self, state: SolverState, stored) -> SolverState:
+        """``state`` with what :meth:`to_checkpoint` stored: K* factorised again from its matrix
+        (the same factors, so a resumed run is bit-identical; not counted in
+        ``stats.factorizations``: the time loop counts it in ``stats.resumes``)."""
+        return self.with_factorization(state, Factorization(stored, state.problem.stats))
+
+
+def _failed(failure: StepFailure, state: SolverState) -> StepFailure:
+    """``failure`` with the state to retry from attached (:meth:`StepSolver.state_after_failure`)."""
+    failure.solver_state = state
+    return failure
+
+
+@dataclasses.dataclass(frozen=True)
+class ANM(StepSolver):
     """Asymptotic Numerical Method: homotopy, Taylor series by jet, continuation.
 
     Parameters
@@ -357,29 +442,35 @@ class ANM:
         if self.criterion not in ("increment", "state"):
             raise InputError(f"ANM.criterion must be 'increment' (eq. 26) or 'state', got {self.criterion!r}")
 
-    def init(self, problem: Problem) -> "_ANMStepper":
-        """Stepper carrying K* across time steps."""
-        return _ANMStepper(self, problem)
+
+    def step(self, state: SolverState, step: int, x_old, t, dt, params) -> tuple[np.ndarray, SolverState]:
+        """One time step by series and continuation from ``x_old``, with the state's K* (refactorised
+        when its series falls short); the new state holds the K* used last and the residual
+        at the accepted state (evaluated by the end-point check)."""
+        attempt = _ANMStep(self, state.problem, state.factorization)
+        try:
+            x, residual = attempt.run(step, x_old, t, dt, params)
+        except StepFailure as failure:
+            raise _failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None))
+        return x, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=residual)
 
 
-class _ANMStepper:
-    reuses_kstar = True
+class _ANMStep:
+    """One time step of the :class:`ANM` (``opts``): series, continuation sub-steps, acceptance.
 
-    def __init__(self, opts: ANM, problem: Problem):
+    ``fact`` is the K* it works with: the state's, replaced when a series from a stale K*
+    falls short; :meth:`ANM.step` hands the last one on in the new state.
+    """
+
+    def __init__(self, opts: ANM, problem: Problem, fact: Factorization | None):
         self.opts = opts
         self.problem = problem
-        self.fact = None
-        self._accepted_residual = None
+        self.fact = fact
 
-    def accepted_residual(self):
-        """The residual at the state the last :meth:`step` returned (evaluated by its end-point
-        check), or None; each value is handed out once."""
-        r, self._accepted_residual = self._accepted_residual, None
-        return r
-
-    def step(self, step: int, x_old, t, dt, params):
+    def run(self, step: int, x_old, t, dt, params):
+        """The accepted state and the residual there (None when not evaluated): ``(x, R(x))``."""
         P, p, st = self.problem, self.opts.order, self.problem.stats
-        self._accepted_residual = None
+        args = (x_old, t, dt, params)
         d_s = np.array(x_old, dtype=np.float64)
         fresh = False
         substeps = 0
@@ -388,8 +479,7 @@ class _ANMStepper:
         while True:
             # the residual coefficient that order j needs depends on c_1 .. c_{j-1} only (and, for
             # the Newton homotopy, on the provisional c_j = c_{j-1}): each jet is truncated there
-            path = SeriesPath(P, d_s, (x_old, t, dt, params), lookahead=self.opts.homotopy == "newton",
-                              max_terms=p - 1)
+            path = SeriesPath(P, d_s, args, lookahead=self.opts.homotopy == "newton", max_terms=p - 1)
             r0 = path.start_residual() if r_next is None else r_next
             r_next = None
             r0_norm = float(np.max(np.abs(r0)))
@@ -397,23 +487,15 @@ class _ANMStepper:
                 raise NonFiniteError("residual at the start of the series is not finite", step=step, t=t,
                                      amax=amax, residual_norm=r0_norm)
             if self.fact is None:
-                self.fact = P.factorize_in_step(step, d_s, x_old, t, dt, params, amax=amax, residual_norm=r0_norm)
+                self.fact = P.factorize_in_step(step, d_s, *args, amax=amax, residual_norm=r0_norm)
                 fresh = True
-            coeffs = np.zeros((p, d_s.size))
-            with st.timer("solve"):
-                coeffs[0] = -self.fact.solve(r0)
-            for j in range(2, p + 1):
-                rj = path.next(coeffs[j - 2])
-                with st.timer("solve"):
-                    coeffs[j - 1] = coeffs[j - 2] - self.fact.solve(rj)
-                if self.opts.adaptive and j < p:
-                    accepted = self._accept_early(coeffs[:j], d_s, x_old, t, dt, params)
-                    if accepted is not None:
-                        return accepted
+            coeffs, accepted = self._series(path, r0, d_s, args)
+            if accepted is not None:
+                return accepted
             amax = self._validity_range(coeffs, d_s)
             if amax >= 1.0:
                 d_end = d_s + coeffs.sum(axis=0)
-                check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], x_old, t, dt, params)
+                check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], *args)
                 if check <= CHECK_LIMIT:
                     return self._accepted(d_end, amax, p, r_end)
                 # the series claimed a = 1 but its end point is not converged (e.g. a last
@@ -436,15 +518,10 @@ class _ANMStepper:
                     d_s = d_s + evaluate_series(coeffs, 0.5)
                 fresh = False
                 continue
-            approx, a_pade = None, 0.0  # the Padé approximant and its range, when tried
-            if self.opts.pade and np.all(np.isfinite(coeffs)):
-                approx, a_pade = self._pade_range(coeffs, d_s)
-                if a_pade >= 1.0:  # the approximant's end point, checked like a series'
-                    d_end = d_s + _pade.evaluate(approx, 1.0)
-                    check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], x_old, t, dt, params)
-                    if check <= CHECK_LIMIT:
-                        st.pade_accepted += 1
-                        return self._accepted(d_end, a_pade, p, r_end)
+            approx, a_pade, pade_end = self._try_pade(coeffs, d_s, args)
+            if pade_end is not None and pade_end[1] <= CHECK_LIMIT:
+                st.pade_accepted += 1
+                return self._accepted(pade_end[0], a_pade, p, pade_end[3])
             if not fresh:  # stale K*: refactorise at the current point and redo the series
                 self.fact = None
                 continue
@@ -457,22 +534,55 @@ class _ANMStepper:
                                   step=step, t=t, amax=amax, residual_norm=r0_norm)
             substeps += 1
             st.substeps += 1  # counted when taken (a refused sub-step is a failure, not a sub-step)
-            # continuation: restart the homotopy at the farther trusted point
-            if approx is None or a_pade <= amax:
-                d_s = d_s + evaluate_series(coeffs, amax)
-            elif a_pade < 1.0:
-                d_s = d_s + _pade.evaluate(approx, a_pade)
-            elif distance < P.norm(coeffs[0]):  # the approximant's end point failed its check but is
-                d_s, r_next = d_end, r_end  # closer to the solution than the start (as for a series)
-            else:
-                d_s = d_s + evaluate_series(coeffs, amax)
+            d_s, r_next = self._continuation_point(coeffs, d_s, amax, approx, a_pade, pade_end)
             fresh = False
+
+    def _series(self, path: SeriesPath, r0, d_s, args):
+        """The series' coefficients ``c_1 .. c_p`` by K*: ``(coeffs, None)``, or, order-adaptive,
+        ``(None, (x, R(x)))`` when a truncated series is accepted on the way."""
+        p = self.opts.order
+        coeffs = np.zeros((p, d_s.size))
+        coeffs[0] = -self.fact.solve(r0)
+        for j in range(2, p + 1):
+            rj = path.next(coeffs[j - 2])
+            coeffs[j - 1] = coeffs[j - 2] - self.fact.solve(rj)
+            if self.opts.adaptive and j < p:
+                accepted = self._accept_early(coeffs[:j], d_s, *args)
+                if accepted is not None:
+                    return None, accepted
+        return coeffs, None
+
+    def _try_pade(self, coeffs, d_s, args):
+        """With ``pade``, the approximant of a series whose a_max < 1, its range, and when that
+        reaches a = 1 its end point checked like a series': ``(approx, a_pade, end)`` with
+        ``end = (d_end, check, distance, R(d_end))`` or None; ``(None, 0.0, None)`` untried."""
+        if not (self.opts.pade and np.all(np.isfinite(coeffs))):
+            return None, 0.0, None
+        approx, a_pade = self._pade_range(coeffs, d_s)
+        if a_pade < 1.0:
+            return approx, a_pade, None
+        d_end = d_s + _pade.evaluate(approx, 1.0)
+        check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], *args)
+        return approx, a_pade, (d_end, check, distance, r_end)
+
+    def _continuation_point(self, coeffs, d_s, amax, approx, a_pade, pade_end):
+        """Where a continuation sub-step restarts the homotopy (and the residual there, when
+        known): the farther trusted point of the series (at a_max) and of its Padé approximant."""
+        if approx is None or a_pade <= amax:
+            return d_s + evaluate_series(coeffs, amax), None
+        if a_pade < 1.0:
+            return d_s + _pade.evaluate(approx, a_pade), None
+        d_end, _, distance, r_end = pade_end
+        if distance < self.problem.norm(coeffs[0]):  # the approximant's end point failed its check but
+            return d_end, r_end  # is closer to the solution than the start (as for a series)
+        return d_s + evaluate_series(coeffs, amax), None
 
     def _accept_early(self, coeffs, d_s, x_old, t, dt, params):
         """Order-adaptive acceptance of the series truncated at order ``j = len(coeffs) < p``:
-        the end point ``d_s + c_1 + ... + c_j`` when its a_max (eq. 26 at order j) reaches 1 and
-        it passes the same end-point check as a full series, else None (the series goes on to
-        order j + 1; a truncated series that fails is no failure of the step)."""
+        ``(x, R(x))`` with the end point ``x = d_s + c_1 + ... + c_j`` when its a_max (eq. 26 at
+        order j) reaches 1 and it passes the same end-point check as a full series, else None
+        (the series goes on to order j + 1; a truncated series that fails is no failure of the
+        step)."""
         amax = self._validity_range(coeffs, d_s)
         if not amax >= 1.0:
             return None
@@ -496,12 +606,11 @@ class _ANMStepper:
                               state=d_s if self.opts.criterion == "state" else None)
 
     def _accepted(self, d_end, amax, order, r_end):
-        """Record an accepted series (a_max, its order, the residual at its end point); return ``d_end``."""
+        """Record an accepted series (a_max, its order); return ``(d_end, R(d_end))``."""
         st = self.problem.stats
         st.amax.append(amax)
         st.orders.append(order)
-        self._accepted_residual = r_end
-        return d_end
+        return d_end, r_end
 
     def _end_point_check(self, d_end, d_s, c_1, x_old, t, dt, params):
         """A-posteriori check of an accepted series: the Newton distance of its end point by the
@@ -516,8 +625,7 @@ class _ANMStepper:
         r_end = P.residual(d_end, x_old, t, dt, params)
         if not np.all(np.isfinite(r_end)):
             return 0.0, np.inf, r_end
-        with P.stats.timer("solve"):
-            distance = P.norm(self.fact.solve(r_end))
+        distance = P.norm(self.fact.solve(r_end))
         promised = self.opts.tol * P.norm(c_1)
         if self.opts.criterion == "state":
             promised = max(promised, self.opts.tol * P.norm(d_s))
@@ -529,62 +637,33 @@ def _relative_change(P: Problem, dx, x) -> float:
     return P.norm(dx) / max(P.norm(x), np.finfo(float).tiny)
 
 
-@dataclasses.dataclass(frozen=True)
-class Newton:
-    """Newton–Raphson: a Jacobian and a factorisation at every iteration.
+class _NewtonIteration(StepSolver):
+    """The Newton iteration shared by :class:`Newton` (a Jacobian per iteration) and
+    :class:`ModifiedNewton` (the factorised Jacobian reused while it contracts): subclasses set
+    ``tol``, ``max_iter``, ``reuses_factorization`` and, when reusing, ``max_rate``."""
 
-    Converged when the relative change of the (scaled) iterates ``|dx| / |x|`` is below ``tol``
-    (the paper's delta).
-    """
-
-    tol: float = 1e-6
-    max_iter: int = 30
-
-    def __post_init__(self):
-        _check_tol("Newton", self.tol)
-        _check_count("Newton", "max_iter", self.max_iter, 1)
-
-    def init(self, problem: Problem) -> "_NewtonStepper":
-        """Stateless stepper (nothing is reused across iterations)."""
-        return _NewtonStepper(self, problem, reuse=False)
+    def step(self, state: SolverState, step: int, x_old, t, dt, params) -> tuple[np.ndarray, SolverState]:
+        """Newton iterations from ``x_old`` until ``|dx| / |x| <= tol``; the new state holds the
+        last factorised Jacobian (carried to the next step when ``reuses_factorization``)."""
+        attempt = _NewtonStep(self, state.problem, state.factorization)
+        try:
+            x = attempt.run(step, x_old, t, dt, params)
+        except StepFailure as failure:
+            raise _failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None))
+        return x, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None)
 
 
-@dataclasses.dataclass(frozen=True)
-class ModifiedNewton:
-    """Modified Newton: the factorised Jacobian is reused across iterations and time steps.
+class _NewtonStep:
+    """One time step of a :class:`_NewtonIteration` (``opts``); ``fact`` is the factorised
+    Jacobian it works with (the state's, rebuilt as the options say)."""
 
-    It is rebuilt at the current iterate when the contraction ``|dx_k| / |dx_{k-1}|`` exceeds
-    ``max_rate`` (or the iteration diverges).  Same convergence test as :class:`Newton`.
-    """
-
-    tol: float = 1e-6
-    max_iter: int = 50
-    max_rate: float = 0.5
-
-    def __post_init__(self):
-        _check_tol("ModifiedNewton", self.tol)
-        _check_count("ModifiedNewton", "max_iter", self.max_iter, 1)
-        if not (0 < self.max_rate < 1):
-            raise InputError(f"ModifiedNewton.max_rate must be in (0, 1), got {self.max_rate!r}")
-
-    def init(self, problem: Problem) -> "_NewtonStepper":
-        """Stepper carrying the factorised Jacobian across iterations and time steps."""
-        return _NewtonStepper(self, problem, reuse=True)
-
-
-class _NewtonStepper:
-    def __init__(self, opts, problem: Problem, reuse: bool):
+    def __init__(self, opts: _NewtonIteration, problem: Problem, fact: Factorization | None):
         self.opts = opts
         self.problem = problem
-        self.reuse = reuse
-        self.reuses_kstar = reuse
-        self.fact = None
+        self.fact = fact
 
-    def accepted_residual(self):
-        """None: Newton's last residual is that of the iterate before the last correction."""
-        return None
-
-    def step(self, step: int, x_old, t, dt, params):
+    def run(self, step: int, x_old, t, dt, params) -> np.ndarray:
+        """The converged iterate."""
         P, st = self.problem, self.problem.stats
         x = np.array(x_old, dtype=np.float64)
         previous = None
@@ -594,11 +673,10 @@ class _NewtonStepper:
             r_norm = float(np.max(np.abs(r)))
             if not np.isfinite(r_norm):
                 raise NonFiniteError("Newton residual is not finite", step=step, t=t, residual_norm=r_norm)
-            just_factored = self.fact is None or not self.reuse
+            just_factored = self.fact is None or not self.opts.reuses_factorization
             if just_factored:
                 self.fact = P.factorize_in_step(step, x, x_old, t, dt, params, residual_norm=r_norm)
-            with st.timer("solve"):
-                dx = -self.fact.solve(r)
+            dx = -self.fact.solve(r)
             size = P.norm(dx)
             if (not just_factored and previous is not None and size > self.opts.max_rate * previous) or not np.isfinite(size):
                 if just_factored:
@@ -615,3 +693,40 @@ class _NewtonStepper:
         raise StepFailure(f"{type(self.opts).__name__} did not converge in {self.opts.max_iter} iterations "
                           f"(last relative change {change:.3g} > tol {self.opts.tol:g})",
                           step=step, t=t, residual_norm=r_norm)
+
+
+@dataclasses.dataclass(frozen=True)
+class Newton(_NewtonIteration):
+    """Newton–Raphson: a Jacobian and a factorisation at every iteration.
+
+    Converged when the relative change of the (scaled) iterates ``|dx| / |x|`` is below ``tol``
+    (the paper's delta).
+    """
+
+    tol: float = 1e-6
+    max_iter: int = 30
+    reuses_factorization = False  # nothing is reused across iterations or steps
+
+    def __post_init__(self):
+        _check_tol("Newton", self.tol)
+        _check_count("Newton", "max_iter", self.max_iter, 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class ModifiedNewton(_NewtonIteration):
+    """Modified Newton: the factorised Jacobian is reused across iterations and time steps.
+
+    It is rebuilt at the current iterate when the contraction ``|dx_k| / |dx_{k-1}|`` exceeds
+    ``max_rate`` (or the iteration diverges).  Same convergence test as :class:`Newton`.
+    """
+
+    tol: float = 1e-6
+    max_iter: int = 50
+    max_rate: float = 0.5
+    reuses_factorization = True
+
+    def __post_init__(self):
+        _check_tol("ModifiedNewton", self.tol)
+        _check_count("ModifiedNewton", "max_iter", self.max_iter, 1)
+        if not (0 < self.max_rate < 1):
+            raise InputError(f"ModifiedNewton.max_rate must be in (0, 1), got {self.max_rate!r}")

@@ -15,7 +15,8 @@ class Stats:
 
     Counters are totals over the run.  ``series_orders`` counts evaluations of the jet
     series (one per order and per series); ``residual_evaluations`` counts plain residual
-    evaluations (series evaluations excluded).  ``resumes`` counts continuations from a
+    evaluations (series evaluations excluded).  ``solves`` counts the right-hand sides solved
+    with a factorised K* (each a forward and a backward triangular sweep).  ``resumes`` counts continuations from a
     checkpoint (each re-factorises the stored K* once, not counted in ``factorizations``).
     ``pade_accepted`` counts the ANM series accepted through their Padé approximant
     (``ANM(pade=True)``).  ``amax`` holds, for ANM, the validity range of the accepted series
@@ -34,6 +35,7 @@ class Stats:
     series_orders: int = 0
     residual_evaluations: int = 0
     newton_iterations: int = 0
+    solves: int = 0
     substeps: int = 0
     pade_accepted: int = 0
     dt_halvings: int = 0

@@ -121,7 +121,7 @@ def test_the_check_costs_no_factorisation_where_the_series_is_fine(make, solver,
     kw = dict(t0=0.0, t1=t1, dt=1e-2, solver=solver)
     checked = jaxanm.integrate(residual, x0, params, **kw)
     # the solver as it was before the check: every series with a_max >= 1 accepted unseen
-    monkeypatch.setattr(jaxanm.solvers._ANMStepper, "_end_point_check",
+    monkeypatch.setattr(jaxanm.solvers._ANMStep, "_end_point_check",
                         lambda self, *args: (0.0, 0.0, None))
     unchecked = jaxanm.integrate(residual, x0, params, **kw)
     a, b = checked.stats, unchecked.stats
