@@ -1,7 +1,10 @@
-"""The time loop: implicit Euler steps of a user residual with an ANM or Newton step solver."""
+"""The time loop: implicit Euler steps of a user residual with a step solver (ANM, Newton, ...).
+
+It is the only time loop: forward sensitivities ride on it (its ``sensitivity`` option)."""
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import math
 import os
@@ -149,7 +152,7 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
               observe: Callable | None = None, progress: bool = False, callback: Callable | None = None,
               max_dt_halvings: int = 4, checkpoint=None, checkpoint_every: int = 0,
               resume: bool = False, host_state: tuple | None = None,
-              controller: StepController | None = None) -> Solution:
+              controller: StepController | None = None, sensitivity: SensitivityMethod | None = None) -> Solution:
     """Integrate ``R(x_new, x_old, t_new, dt, params) = 0`` by implicit Euler steps from t0 to t1.
 
     Parameters
@@ -212,6 +215,11 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         Adaptive step sizes from a local error estimate (:mod:`jaxanm.step_control`); the
         accepted sizes are in ``stats.step_sizes``, the steps refused by the error test in
         ``stats.rejected_steps``.  None: fixed steps of ``dt``.
+    sensitivity : SensitivityMethod, optional
+        Derivatives carried along the steps (:class:`SensitivityMethod`; :func:`jaxanm.sensitivities`
+        passes a :class:`~jaxanm.sensitivity.ForwardSensitivity`): every solved (sub-)step goes
+        to it, which may polish the state the run goes on from, and every accepted step.  Not
+        with ``after_step``, a ``controller`` or checkpoints.
 
     Returns
     -------
@@ -227,6 +235,25 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         exception (and a ``KeyboardInterrupt``) carries the run's statistics so far as ``stats``.
     """
     x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at, controller)
+    _check_run_options(checkpoint, checkpoint_every, resume, host_state, after_step, controller, sensitivity)
+    params = on_device(params_float64(params))
+    start = time.perf_counter()
+    jacobian = jacobian_kind(jacobian, sparsity, x0.size)
+    if jacobian == "sparse" and sparsity is None:
+        sparsity = detect_sparsity(residual, x0, x0, t0 + dt, dt, params)
+    if sparsity is not None and not (callable(sparsity) or scipy.sparse.issparse(sparsity)):
+        raise InputError("sparsity must be a scipy sparse matrix or a callable params -> matrix")
+    options = _LoopOptions(t0=t0, t1=t1, dt=dt, save_every=save_every, save_at=save_at, save_params=save_params,
+                           after_step=after_step, observe=observe, progress=progress, callback=callback,
+                           max_dt_halvings=max_dt_halvings, checkpoint=checkpoint,
+                           checkpoint_every=checkpoint_every, resume=resume, host_state=host_state,
+                           controller=controller, sensitivity=sensitivity)
+    loop = _TimeLoop(residual, solver, x0, params, scale, jacobian, sparsity, options, start)
+    return loop.run()
+
+
+def _check_run_options(checkpoint, checkpoint_every, resume, host_state, after_step, controller, sensitivity):
+    """Check the options of :func:`integrate` that go together (:class:`InputError`)."""
     if checkpoint_every and checkpoint is None:
         raise InputError("checkpoint_every needs a checkpoint path: pass checkpoint='run.ckpt'")
     if resume and checkpoint is None:
@@ -234,97 +261,205 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     if host_state is not None and not (isinstance(host_state, tuple) and len(host_state) == 2
                                        and all(callable(f) for f in host_state)):
         raise InputError("host_state must be a (get, set) pair of callables")
-    params = on_device(params_float64(params))
-    start = time.perf_counter()
-    n = x0.size
-    jacobian = jacobian_kind(jacobian, sparsity, n)
-    if jacobian == "sparse" and sparsity is None:
-        sparsity = detect_sparsity(residual, x0, x0, t0 + dt, dt, params)
-    if sparsity is not None and not (callable(sparsity) or scipy.sparse.issparse(sparsity)):
-        raise InputError("sparsity must be a scipy sparse matrix or a callable params -> matrix")
-    n_steps = max(1, math.ceil((t1 - t0) / dt - 1e-9))
-    fingerprint = {"n": n, "t0": float(t0), "t1": float(t1), "dt": float(dt), "solver": repr(solver),
-                   "controller": _describe(controller)}
+    if sensitivity is None:
+        return
+    if not isinstance(sensitivity, SensitivityMethod):
+        raise InputError(f"sensitivity must be a jaxanm.SensitivityMethod (e.g. "
+                         f"jaxanm.ForwardSensitivity), got {sensitivity!r}")
+    if after_step is not None or controller is not None or checkpoint is not None:
+        raise InputError("sensitivity cannot be combined with after_step (params changed on the host are not "
+                         "differentiable), a controller or checkpoints (the sensitivities are not stored)")
 
-    run = _RunState(k=0, t=float(t0), x=x0, params=params, stats=Stats(), ts=[float(t0)], xs=[x0.copy()],
-                    ps=[to_host(params)] if save_params else None, observed=_observation(observe, t0, x0, params, None))
-    kstar = None
-    if resume and os.path.exists(checkpoint):
-        run, kstar, host = _RunState.load(checkpoint, fingerprint)
-        run.params = on_device(run.params)
-        if host_state is not None:
+
+class SensitivityMethod(abc.ABC):
+    """Derivatives carried along the steps of :func:`integrate` (its ``sensitivity`` option,
+    as diffrax's ``adjoint``): the loop hands it every solved (sub-)step and every accepted
+    step; :class:`jaxanm.sensitivity.ForwardSensitivity` is the one in jaxanm."""
+
+    @abc.abstractmethod
+    def start(self, problem: Problem, t0: float, x0: np.ndarray, params) -> None:
+        """Before the first step: the run's problem and initial state."""
+
+    @abc.abstractmethod
+    def after_solve(self, solver: StepSolver, state, x_old, x, t, dt, step: int):
+        """After the solver solved the (sub-)step from ``x_old`` to ``x`` (its failures are not
+        retried by dt halving): ``(x, |R(x)|_inf, solver state)``, ``x`` as the trajectory goes on."""
+
+    @abc.abstractmethod
+    def record(self, t: float, x: np.ndarray, params) -> None:
+        """After every accepted step, with the state the run goes on from."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _LoopOptions:
+    """The options of one :func:`integrate` run, as documented there."""
+
+    t0: float
+    t1: float
+    dt: float
+    save_every: int | None
+    save_at: object
+    save_params: bool
+    after_step: Callable | None
+    observe: Callable | None
+    progress: bool
+    callback: Callable | None
+    max_dt_halvings: int
+    checkpoint: object
+    checkpoint_every: int
+    resume: bool
+    host_state: tuple | None
+    controller: StepController | None
+    sensitivity: SensitivityMethod | None
+
+
+class _TimeLoop:
+    """One run of :func:`integrate`: what it carries from step to step (``run_state``, a
+    :class:`_RunState`, and the solver's ``state``) and how a step is taken, retried and recorded."""
+
+    def __init__(self, residual, solver: StepSolver, x0, params, scale, jacobian, sparsity,
+                 options: _LoopOptions, start: float):
+        o = self.options = options
+        self.solver, self.scale, self.start = solver, scale, start
+        self.n_steps = max(1, math.ceil((o.t1 - o.t0) / o.dt - 1e-9))
+        self.fingerprint = {"n": x0.size, "t0": float(o.t0), "t1": float(o.t1), "dt": float(o.dt),
+                            "solver": repr(solver), "controller": _describe(o.controller)}
+        self.run_state = _RunState(k=0, t=float(o.t0), x=x0, params=params, stats=Stats(), ts=[float(o.t0)],
+                                   xs=[x0.copy()], ps=[to_host(params)] if o.save_params else None,
+                                   observed=_observation(o.observe, o.t0, x0, params, None))
+        kstar = self._resumed() if o.resume and os.path.exists(o.checkpoint) else None
+        self.stats = self.run_state.stats
+        self.previous_wall = self.stats.wall_time_s
+        self.problem = Problem(residual, scale, self.stats, jacobian, sparsity)
+        self.state = solver.init(self.problem)
+        if kstar is not None:
+            self.state = solver.from_checkpoint(self.state, kstar)
+            self.stats.resumes += 1
+        if o.sensitivity is not None:
+            o.sensitivity.start(self.problem, o.t0, x0, params)
+        self.saves = _save_steps(o.t0, o.dt, self.n_steps, o.save_every, o.save_at)
+        self.save_times = (sorted({float(v) for v in np.atleast_1d(o.save_at) if o.t0 < v < o.t1})
+                           if o.save_at is not None else [])
+        self.bar = _progress_bar(None if o.controller else self.n_steps, o.t1 - o.t0, o.progress,
+                                 initial=self.run_state.k)
+        self.guard = None
+
+    def _resumed(self):
+        """Load the checkpoint into ``run_state`` (and the caller's host state); return what the
+        solver stored of its state."""
+        o = self.options
+        self.run_state, kstar, host = _RunState.load(o.checkpoint, self.fingerprint)
+        self.run_state.params = on_device(self.run_state.params)
+        if o.host_state is not None:
             if host is None:
-                raise InputError(f"checkpoint {checkpoint} holds no host state, but this run needs one; "
+                raise InputError(f"checkpoint {o.checkpoint} holds no host state, but this run needs one; "
                                  "it was written by another kind of run: start afresh")
-            host_state[1](host)
-    stats = run.stats
-    previous_wall = stats.wall_time_s
-    problem = Problem(residual, scale, stats, jacobian, sparsity)
-    state = solver.init(problem)
-    if kstar is not None:
-        state = solver.from_checkpoint(state, kstar)
-        stats.resumes += 1
-    saves = _save_steps(t0, dt, n_steps, save_every, save_at)
-    save_times = sorted({float(v) for v in np.atleast_1d(save_at) if t0 < v < t1}) if save_at is not None else []
-    bar = _progress_bar(None if controller else n_steps, t1 - t0, progress, initial=run.k)
+            o.host_state[1](host)
+        return kstar
 
-    def advance(x, t, h, step, depth):
+    def run(self) -> Solution:
+        """Every step from the run's state to t1; the :class:`Solution`."""
+        o, stats, run = self.options, self.stats, self.run_state
+        try:
+            with sigterm_as_interrupt() as self.guard:
+                self._steps()
+        except BaseException as exc:
+            if o.checkpoint is not None and not (self.guard is not None and self.guard.held):
+                self._save_checkpoint()  # everything up to the last accepted step (not if recording it failed)
+            if isinstance(exc, (StepFailure, KeyboardInterrupt)):
+                exc.stats = stats  # the work done until the failure (factorisations, halvings, ...)
+            raise
+        finally:
+            if self.bar is not None:
+                self.bar.close()
+            stats.close(self.previous_wall + time.perf_counter() - self.start)
+        if o.checkpoint is not None:
+            self._save_checkpoint()
+        observed = None if o.observe is None else {key: np.asarray(v) for key, v in run.observed.items()}
+        return Solution(ts=np.asarray(run.ts), xs=np.asarray(run.xs), stats=stats, params=run.ps, observed=observed)
+
+    def _steps(self) -> None:
+        """The time steps: fixed ones of dt (the last ending on t1), or sized by the controller."""
+        o, run = self.options, self.run_state
+        if o.controller is None:
+            for k in range(run.k + 1, self.n_steps + 1):
+                t_new = o.t0 + k * o.dt if k < self.n_steps else float(o.t1)
+                x_new, r_norm = self._advance(run.x, run.t, t_new - run.t, k, 0)
+                self._record(k, t_new, x_new, r_norm, saved=k in self.saves)
+        else:
+            while run.t < o.t1:
+                k = run.k + 1
+                t_new, x_new, r_norm = self._controlled_step(k)
+                saved = (t_new == o.t1 or t_new in self.save_times
+                         or (o.save_at is None and k % (o.save_every or 1) == 0))
+                self._record(k, t_new, x_new, r_norm, saved=saved)
+
+    def _advance(self, x, t, h, step, depth):
         """One step of size h, split in halves on failure; returns the state and |R|_inf there.
 
         The residual of the accepted state is evaluated with the (sub-)step it solved; a
         non-finite state or residual is a :class:`NonFiniteError` (and is halved like any
-        failed step).
+        failed step).  With a ``sensitivity``, each solved (sub-)step goes to it, outside the
+        halving (its own failures are not retried).
         """
         try:
-            return solve_step(x, t, h, step)
+            x_new, r_norm = self._solve_step(x, t, h, step)
         except StepFailure:
-            if depth >= max_dt_halvings:
+            if depth >= self.options.max_dt_halvings:
                 raise
-            stats.dt_halvings += 1
-            xm, _ = advance(x, t, h / 2, step, depth + 1)
-            return advance(xm, t + h / 2, h / 2, step, depth + 1)
+            self.stats.dt_halvings += 1
+            xm, _ = self._advance(x, t, h / 2, step, depth + 1)
+            return self._advance(xm, t + h / 2, h / 2, step, depth + 1)
+        sensitivity = self.options.sensitivity
+        if sensitivity is not None:
+            x_new, r_norm, self.state = sensitivity.after_solve(self.solver, self.state, x, x_new,
+                                                                np.float64(t + h), np.float64(h), step)
+        return x_new, r_norm
 
-    def solve_step(x, t, h, step):
-        """One step of size h by the solver, its accepted state checked (see ``advance``); the
-        solver's state moves on to the one it returned (or, if it failed, left to retry from)."""
-        nonlocal state
+    def _solve_step(self, x, t, h, step):
+        """One step of size h by the solver, its accepted state checked (see :meth:`_advance`;
+        not with a ``sensitivity``, whose polish takes the state on); the solver's state moves
+        on to the one it returned (or, if it failed, left to retry from)."""
         # numpy scalars: a jnp scalar costs a device dispatch per conversion (13 % of a small step)
         t_new, h_new = np.float64(t + h), np.float64(h)
         try:
-            x_new, state = solver.step(state, step, x, t_new, h_new, run.params)
+            x_new, self.state = self.solver.step(self.state, step, x, t_new, h_new, self.run_state.params)
         except StepFailure as failure:
-            state = solver.state_after_failure(state, failure)
+            self.state = self.solver.state_after_failure(self.state, failure)
             raise
-        r_new = solver.accepted_residual(state)
+        if self.options.sensitivity is not None:
+            return x_new, None
+        r_new = self.solver.accepted_residual(self.state)
         if r_new is None:
-            r_new = problem.residual(x_new, x, t_new, h_new, run.params)
+            r_new = self.problem.residual(x_new, x, t_new, h_new, self.run_state.params)
         r_norm = float(np.max(np.abs(r_new)))
         if not (np.isfinite(r_norm) and np.all(np.isfinite(x_new))):
+            amax = self.stats.amax[-1] if self.stats.amax else None
             raise NonFiniteError(f"the accepted state has {int(np.sum(~np.isfinite(x_new)))} non-finite "
-                                 "entries or a non-finite residual", step=step, t=t_new,
-                                 amax=stats.amax[-1] if stats.amax else None,
+                                 "entries or a non-finite residual", step=step, t=t_new, amax=amax,
                                  residual_norm=r_norm)
         return x_new, r_norm
 
-    def controlled_step(k):
+    def _controlled_step(self, k):
         """Step k with a controller: sizes by the local error test; returns ``(t_new, x_new,
-        r_norm)`` and leaves the next proposal in ``run.h_next``."""
-        h = run.h_next if run.h_next is not None else float(dt)  # the proposed size
+        r_norm)`` and leaves the next proposal in ``run_state.h_next``."""
+        o, run, stats, controller = self.options, self.run_state, self.stats, self.options.controller
+        h = run.h_next if run.h_next is not None else float(o.dt)  # the proposed size
         y_now = controller.measured(run.x, run.params) if run.history is not None else None
         failures = 0
         while True:
             # end exactly on the next save time or on t1 when the step reaches it (or falls
             # short of it by a sliver the next step could not resolve)
             t_new = run.t + h
-            for end in [v for v in save_times if v > run.t][:1] + [float(t1)]:
-                if t_new >= end - _MIN_STEP * (t1 - t0):
+            for end in [v for v in self.save_times if v > run.t][:1] + [float(o.t1)]:
+                if t_new >= end - _MIN_STEP * (o.t1 - o.t0):
                     t_new = end
                     break
             size = t_new - run.t
             try:
-                x_new, r_norm = solve_step(run.x, run.t, size, k)
+                x_new, r_norm = self._solve_step(run.x, run.t, size, k)
             except StepFailure:
-                if failures >= max_dt_halvings:
+                if failures >= o.max_dt_halvings:
                     raise
                 failures += 1
                 stats.dt_halvings += 1
@@ -334,11 +469,11 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
                 run.h_next = controller.clip(h)
                 break
             y_before, h_prev = run.history
-            err = controller.error(controller.measured(x_new, run.params), y_now, y_before, size, h_prev, scale)
+            err = controller.error(controller.measured(x_new, run.params), y_now, y_before, size, h_prev, self.scale)
             # refused: retried from x_n with a smaller step, unless the proposal is already at
             # dt_min (compared before the end-point snapping, which rounds the size)
             if err > 1 and h > controller.dt_min:
-                if size <= _MIN_STEP * (t1 - t0):
+                if size <= _MIN_STEP * (o.t1 - o.t0):
                     raise StepFailure(f"the local error test still fails (error {err:.3g} times the tolerance) "
                                       f"at a step of {size:.3g}: give the controller a larger rtol/atol or a "
                                       "dt_min at which to accept such steps", step=k, t=t_new)
@@ -351,61 +486,37 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         stats.step_sizes.append(size)
         return t_new, x_new, r_norm
 
-    def save_checkpoint():
-        stats.close(previous_wall + time.perf_counter() - start)
-        run.dump(checkpoint, fingerprint, solver.to_checkpoint(state),
-                 host=None if host_state is None else host_state[0]())
+    def _save_checkpoint(self) -> None:
+        """Write the run's state, what the solver stores of its state and the host state."""
+        host_state = self.options.host_state
+        self.stats.close(self.previous_wall + time.perf_counter() - self.start)
+        self.run_state.dump(self.options.checkpoint, self.fingerprint, self.solver.to_checkpoint(self.state),
+                            host=None if host_state is None else host_state[0]())
 
-    def record(k, t_new, x_new, r_norm, saved):
+    def _record(self, k, t_new, x_new, r_norm, saved):
         """Hand an accepted step to the hooks and record it (signals wait meanwhile)."""
-        guard.hold()  # from here to release(): signals wait, the step is recorded whole
+        o, run, stats = self.options, self.run_state, self.stats
+        self.guard.hold()  # from here to release(): signals wait, the step is recorded whole
         stats.residual_norm.append(r_norm)
         stats.time_steps += 1
-        params_new = run.params if after_step is None else after_step(t_new, x_new, run.params)
+        params_new = run.params if o.after_step is None else o.after_step(t_new, x_new, run.params)
         if isinstance(params_new, Remap):
             if not params_new.history:
                 run.history = None
             params_new, x_new = params_new.params, _remapped_state(params_new.x, x_new)
         if params_new is not run.params:
             params_new = on_device(params_new)
-        run.advance(k, t_new, x_new, params_new, saved=saved, observe=observe)
-        guard.release()
-        if callback is not None:
-            callback(t_new, x_new, stats)
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix(t=f"{t_new:.4g}", factorizations=stats.factorizations, refresh=False)
-        if checkpoint_every and k % checkpoint_every == 0:
-            save_checkpoint()
-
-    guard = None
-    try:
-        with sigterm_as_interrupt() as guard:
-            if controller is None:
-                for k in range(run.k + 1, n_steps + 1):
-                    t_new = t0 + k * dt if k < n_steps else float(t1)
-                    x_new, r_norm = advance(run.x, run.t, t_new - run.t, k, 0)
-                    record(k, t_new, x_new, r_norm, saved=k in saves)
-            else:
-                while run.t < t1:
-                    k = run.k + 1
-                    t_new, x_new, r_norm = controlled_step(k)
-                    saved = (t_new == t1 or t_new in save_times or (save_at is None and k % (save_every or 1) == 0))
-                    record(k, t_new, x_new, r_norm, saved=saved)
-    except BaseException as exc:
-        if checkpoint is not None and not (guard is not None and guard.held):  # not if recording a step itself failed
-            save_checkpoint()  # keep everything computed up to the last accepted step
-        if isinstance(exc, (StepFailure, KeyboardInterrupt)):
-            exc.stats = stats  # the work done until the failure (factorisations, halvings, ...)
-        raise
-    finally:
-        if bar is not None:
-            bar.close()
-        stats.close(previous_wall + time.perf_counter() - start)
-    if checkpoint is not None:
-        save_checkpoint()
-    observed = None if observe is None else {key: np.asarray(v) for key, v in run.observed.items()}
-    return Solution(ts=np.asarray(run.ts), xs=np.asarray(run.xs), stats=stats, params=run.ps, observed=observed)
+        run.advance(k, t_new, x_new, params_new, saved=saved, observe=o.observe)
+        if o.sensitivity is not None:
+            o.sensitivity.record(t_new, x_new, run.params)
+        self.guard.release()
+        if o.callback is not None:
+            o.callback(t_new, x_new, stats)
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix(t=f"{t_new:.4g}", factorizations=stats.factorizations, refresh=False)
+        if o.checkpoint_every and k % o.checkpoint_every == 0:
+            self._save_checkpoint()
 
 
 _MIN_STEP = 1e-12
