@@ -10,10 +10,10 @@ global configuration; wrap your own jnp code in ``with jaxanm.float64():`` to ma
 
 from ._x64 import float64
 from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
-from .integrate import Remap, Solution, integrate
+from .integrate import Remap, SensitivityMethod, Solution, integrate
 from .jacobian import SparseJacobian, color_columns, detect_sparsity
 from .linalg import Factorization, factorize
-from .sensitivity import Sensitivities, sensitivities, value_and_grad
+from .sensitivity import ForwardSensitivity, Sensitivities, sensitivities, value_and_grad
 from .series import taylor_coefficients
 from .solvers import ANM, ModifiedNewton, Newton, SolverState, StepSolver, evaluate_series, validity_range
 from .stats import Stats
@@ -22,12 +22,14 @@ from .step_control import StepController
 __all__ = [
     "ANM",
     "Factorization",
+    "ForwardSensitivity",
     "InputError",
     "ModifiedNewton",
     "Newton",
     "NonFiniteError",
     "Remap",
     "Sensitivities",
+    "SensitivityMethod",
     "SingularMatrixError",
     "Solution",
     "SolverState",

@@ -39,6 +39,10 @@ state ``x0`` is taken as independent of theta (S_0 = 0), and ``params`` must not
 between steps (no Lagrangian re-meshing: geometry changes made on the host are not
 differentiable).
 
+The steps are those of :func:`jaxanm.integrate` (the one time loop: step count, dt halving,
+sparsity detection); :class:`ForwardSensitivity` is its ``sensitivity`` option, which polishes
+each solved step and carries S through it.
+
 Public entry points: :func:`sensitivities` (observations and their Jacobian) and
 :func:`value_and_grad` (a scalar loss and its gradient, shaped like theta, for optax).
 """
@@ -47,7 +51,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import time
 from typing import Callable
 
@@ -58,14 +61,12 @@ from jax.flatten_util import ravel_pytree
 
 from ._x64 import entry_point
 from .errors import InputError, StepFailure
-from .integrate import check_run_inputs, jacobian_kind, params_float64
-from .jacobian import detect_sparsity
-from .solvers import Problem
+from .integrate import SensitivityMethod, check_run_inputs, integrate, params_float64
 from .stats import Stats
 
 _FLOOR = 1e3  # a correction that stops shrinking below _FLOOR * polish_tol is at the round-off floor
 
-__all__ = ["SensitivityStats", "Sensitivities", "bind_paths", "loss_value_and_grad", "sensitivities", "value_and_grad"]
+__all__ = ["ForwardSensitivity", "SensitivityStats", "Sensitivities", "bind_paths", "loss_value_and_grad", "sensitivities", "value_and_grad"]
 
 
 def bind_paths(params, theta):
@@ -117,8 +118,8 @@ class SensitivityStats:
     ``extra_factorizations`` counts the Jacobians factorised because refinement or polish
     stalled with the solver's K*; ``rate`` holds, per step, the measured contraction of the
     refinement (an estimate of ``rho(I - K*^-1 J)``); ``residual_norm`` the max-norm of R after
-    polishing; ``wall_time`` splits the time into ``solver``, ``polish``, ``tangent`` (solves)
-    and ``observe``.
+    polishing; ``wall_time`` splits the time into ``polish``, ``tangent`` (solves), ``observe``
+    and ``solver`` (the rest: the step solver and the time loop).
     """
 
     polish_iterations: int = 0
@@ -236,6 +237,9 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
                   max_refine: int = 60, max_dt_halvings: int = 4) -> Sensitivities:
     """Simulate by implicit Euler steps and return observations and their Jacobian d/dtheta.
 
+    The steps are those of :func:`jaxanm.integrate`, with a :class:`ForwardSensitivity` as its
+    ``sensitivity``.
+
     Parameters
     ----------
     residual, x0, t0, t1, dt, solver, scale, jacobian, sparsity, max_dt_halvings :
@@ -269,158 +273,172 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
         with a fresh Jacobian.
     """
     start = time.perf_counter()
-    x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, None, None)
-    if not callable(observe):
-        raise InputError("observe must be a callable (t, x, params) -> dict of arrays (jax.numpy)")
-    if not (isinstance(polish_tol, float) and 0 < polish_tol < 1e-3):
-        raise InputError(f"polish_tol must be a float in (0, 1e-3), got {polish_tol!r}")
-    theta = _theta_float64(theta)
-    params = params_float64(params)
-    if bind is None:
-        _check_paths(params, theta)
-        bind = bind_paths
-    theta_vec, unravel = ravel_pytree({k: jnp.asarray(v) for k, v in theta.items()})
-    P = theta_vec.size
-    basis = jax.vmap(unravel)(jnp.eye(P))
-    theta_j = unravel(theta_vec)
-    bound = bind(params, theta_j)
-    step_rhs, jac_x, obs, obs_tangent = _kernels(residual, bind, observe)
+    check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, None, None)
+    forward = ForwardSensitivity(residual, params, theta, observe, bind=bind, tangents=tangents,
+                                 polish_tol=polish_tol, max_polish=max_polish, max_refine=max_refine)
+    solution = integrate(residual, x0, forward.bound_params, t0=t0, t1=t1, dt=dt, solver=solver, scale=scale,
+                         jacobian=jacobian, sparsity=sparsity, save_at=[t1], max_dt_halvings=max_dt_halvings,
+                         sensitivity=forward)
+    return forward.result(solution.stats, time.perf_counter() - start)
 
-    n = x0.size
-    jacobian = jacobian_kind(jacobian, sparsity, n)
-    if jacobian == "sparse" and sparsity is None:
-        sparsity = detect_sparsity(residual, x0, x0, t0 + dt, dt, bound)
-    stats, sst = Stats(), SensitivityStats()
-    prob = Problem(residual, scale, stats, jacobian, sparsity)
-    state = solver.init(prob)
 
-    def snorm(v):  # scaled 2-norm per column of a (P, n) block
-        return np.linalg.norm(np.atleast_2d(v) / scale, axis=1)
+class ForwardSensitivity(SensitivityMethod):
+    """Forward sensitivities ``S = dx/dtheta`` along the steps of :func:`jaxanm.integrate` (its
+    ``sensitivity`` option), every solved step polished first (module docstring): what
+    :func:`sensitivities` runs.  Pass :attr:`bound_params` as the run's ``params``; after the
+    run, :meth:`result` gives the :class:`Sensitivities`.
 
-    def refresh(x, x_old, t, h):
+    Parameters are those of :func:`sensitivities` (``residual``, ``params``, ``theta``,
+    ``observe``, ``bind``, ``tangents``, ``polish_tol``, ``max_polish``, ``max_refine``),
+    checked here (:class:`InputError`).
+    """
+
+    def __init__(self, residual: Callable, params, theta: dict, observe: Callable, *, bind: Callable | None = None,
+                 tangents: bool = True, polish_tol: float = 1e-13, max_polish: int = 30, max_refine: int = 60):
+        if not callable(observe):
+            raise InputError("observe must be a callable (t, x, params) -> dict of arrays (jax.numpy)")
+        if not (isinstance(polish_tol, float) and 0 < polish_tol < 1e-3):
+            raise InputError(f"polish_tol must be a float in (0, 1e-3), got {polish_tol!r}")
+        self.theta = _theta_float64(theta)
+        self.params = params_float64(params)
+        if bind is None:
+            _check_paths(self.params, self.theta)
+            bind = bind_paths
+        theta_vec, self.unravel = ravel_pytree({k: jnp.asarray(v) for k, v in self.theta.items()})
+        self.size = theta_vec.size  # P, the number of scalars of theta
+        self.basis = jax.vmap(self.unravel)(jnp.eye(self.size))
+        self.theta_j = self.unravel(theta_vec)
+        self.bound_params = bind(self.params, self.theta_j)  # the residual's params at theta: the run's params
+        self.step_rhs, self.jac_x, self.obs, self.obs_tangent = _kernels(residual, bind, observe)
+        self.tangents, self.polish_tol, self.max_polish, self.max_refine = tangents, polish_tol, max_polish, max_refine
+        self.stats = SensitivityStats()
+        self.values, self.tangent_values, self.times = [], [], []
+        self.problem = self.S_T = self.x = None
+        self._solver = self._state = None  # the step solver and its state, during after_solve
+
+    def start(self, problem, t0, x0, params) -> None:
+        """The run's problem; S_0 = 0 (x0 independent of theta) and the observation at t0."""
+        self.problem = problem
+        self.S_T = np.zeros((self.size, x0.size)) if self.tangents else None
+        self.record(t0, x0, params)
+
+    def after_solve(self, solver, state, x_old, x, t, dt, step):
+        """Polish the solved (sub-)step and carry S through it: ``(x polished, |R(x)|_inf,
+        solver state)`` (with the K* refactorised if polish or refinement stalled)."""
+        self._solver, self._state = solver, state
+        tic = time.perf_counter()
+        x, r_norm = self._polish(x, x_old, t, dt, step)
+        toc = time.perf_counter()
+        self.stats.wall_time["polish"] += toc - tic
+        if self.tangents:
+            self.S_T = self._tangent(x, x_old, t, dt, self.S_T, step)
+        self.stats.wall_time["tangent"] += time.perf_counter() - toc
+        state, self._solver, self._state = self._state, None, None
+        return x, r_norm, state
+
+    def record(self, t, x, params) -> None:
+        """The observation at an accepted step (and its tangent), by this sensitivity's own
+        ``params`` and theta (those of the run are ``bound_params``)."""
+        tic = time.perf_counter()
+        t_j = jnp.float64(t)
+        if self.S_T is None:
+            self.values.append(jax.tree_util.tree_map(np.asarray, self.obs(t_j, x, self.params, self.theta_j)))
+        else:
+            v, tan = self.obs_tangent(t_j, x, self.params, self.theta_j, self.S_T, self.basis)
+            self.values.append(jax.tree_util.tree_map(np.asarray, v))
+            self.tangent_values.append(jax.tree_util.tree_map(lambda a: np.moveaxis(np.asarray(a), 0, -1), tan))
+        self.times.append(float(t))
+        self.x = x
+        self.stats.wall_time["observe"] += time.perf_counter() - tic
+
+    def result(self, stats: Stats, wall: float) -> Sensitivities:
+        """The :class:`Sensitivities` of the run, whose step solver's statistics are ``stats``
+        and wall time ``wall`` (the part not spent polishing, refining or observing is
+        ``sensitivity_stats.wall_time["solver"]``)."""
+        if not isinstance(self.values[0], dict):
+            raise InputError(f"observe must return a dict of arrays, got {type(self.values[0]).__name__}")
+        sst = self.stats
+        sst.wall_time["solver"] = max(wall - sst.wall_time["polish"] - sst.wall_time["tangent"]
+                                      - sst.wall_time["observe"], 0.0)
+        stack = lambda *leaves: np.stack(leaves)  # noqa: E731
+        observed = {"t": np.asarray(self.times), **jax.tree_util.tree_map(stack, *self.values)}
+        jac = jax.tree_util.tree_map(stack, *self.tangent_values) if self.tangents else None
+        to_np = lambda v: jax.tree_util.tree_map(lambda a: np.asarray(a, dtype=np.float64), self.unravel(v))  # noqa: E731
+        return Sensitivities(observed=observed, jacobian=jac, theta_names=_names(self.theta), x=np.asarray(self.x),
+                             dx_dtheta=None if self.S_T is None else self.S_T.T.copy(), stats=stats,
+                             sensitivity_stats=sst, wall_time_s=wall, unravel=to_np)
+
+    def _scaled_norms(self, v) -> np.ndarray:
+        """Scaled 2-norm per row of a (P, n) block (or of one vector)."""
+        return np.linalg.norm(np.atleast_2d(v) / self.problem.scale, axis=1)
+
+    def _kstar(self):
+        """The step solver's factorised K*."""
+        return self._solver.factorization(self._state)
+
+    def _refresh(self, x, x_old, t, dt) -> None:
         """The Jacobian at ``x`` factorised and installed as the solver's K* (counted)."""
-        nonlocal state
-        state = solver.with_factorization(state, prob.factorize_at(x, x_old, t, h, bound))
-        sst.extra_factorizations += 1
+        fact = self.problem.factorize_at(x, x_old, t, dt, self.bound_params)
+        self._state = self._solver.with_factorization(self._state, fact)
+        self.stats.extra_factorizations += 1
 
-    def kstar():
-        """The solver's factorised K*."""
-        return solver.factorization(state)
-
-    def polish(x, x_old, t, h, k):
-        """Chord iterations with the solver's K* until R(x) = 0 to round-off."""
+    def _polish(self, x, x_old, t, dt, k):
+        """Chord iterations with the solver's K* until R(x) = 0 to round-off: ``(x, |R(x)|_inf)``."""
+        P, sst, tol = self.problem, self.stats, self.polish_tol
         previous, refreshed = np.inf, False
-        for _ in range(max_polish):
-            r = prob.residual(x, x_old, t, h, bound)
-            dx = -kstar().solve(r)
-            size, ref = snorm(dx)[0], max(snorm(x)[0], np.finfo(float).tiny)
+        for _ in range(self.max_polish):
+            r = P.residual(x, x_old, t, dt, self.bound_params)
+            dx = -self._kstar().solve(r)
+            size, ref = self._scaled_norms(dx)[0], max(self._scaled_norms(x)[0], np.finfo(float).tiny)
             if not np.isfinite(size):
                 raise StepFailure("polish correction is not finite", step=k, t=float(t))
             stalled = size > 0.5 * previous
-            if stalled and size > _FLOOR * polish_tol * ref:  # slow with this K*: exact Jacobian once
+            if stalled and size > _FLOOR * tol * ref:  # slow with this K*: exact Jacobian once
                 if refreshed:
                     raise StepFailure(f"polish does not converge even with a fresh Jacobian "
                                       f"(relative correction {size / ref:.3g})", step=k, t=float(t))
-                refresh(x, x_old, t, h)
+                self._refresh(x, x_old, t, dt)
                 refreshed, previous = True, np.inf
                 continue
             x = x + dx
             sst.polish_iterations += 1
-            if size <= polish_tol * ref or stalled:  # converged, or stalled at the round-off floor
+            if size <= tol * ref or stalled:  # converged, or stalled at the round-off floor
                 break
             previous = size
         else:
-            raise StepFailure(f"polish did not converge in {max_polish} iterations", step=k, t=float(t))
-        sst.residual_norm.append(float(np.max(np.abs(prob.residual(x, x_old, t, h, bound)))))
-        return x
+            raise StepFailure(f"polish did not converge in {self.max_polish} iterations", step=k, t=float(t))
+        r_norm = float(np.max(np.abs(P.residual(x, x_old, t, dt, self.bound_params))))
+        sst.residual_norm.append(r_norm)
+        return x, r_norm
 
-    def tangent(x, x_old, t, h, S_old_T, k):
+    def _tangent(self, x, x_old, t, dt, S_old_T, k):
         """Refinement ``S <- S + K*^-1 (b - J S)`` for the P columns at once."""
-        b = -np.asarray(step_rhs(x, x_old, t, h, params, theta_j, S_old_T, basis))
-        S_T = kstar().solve(b.T).T
+        args = (x, x_old, t, dt, self.params, self.theta_j)
+        b = -np.asarray(self.step_rhs(*args, S_old_T, self.basis))
+        S_T = self._kstar().solve(b.T).T
         rels, refreshed = [], False
-        for _ in range(max_refine):
-            res = b - np.asarray(jac_x(x, x_old, t, h, params, theta_j, S_T))
-            dS_T = kstar().solve(res.T).T
-            sst.refine_iterations += 1
-            rel = float(np.max(snorm(dS_T) / np.maximum(snorm(S_T), np.finfo(float).tiny)))
+        for _ in range(self.max_refine):
+            res = b - np.asarray(self.jac_x(*args, S_T))
+            dS_T = self._kstar().solve(res.T).T
+            self.stats.refine_iterations += 1
+            rel = float(np.max(self._scaled_norms(dS_T) / np.maximum(self._scaled_norms(S_T), np.finfo(float).tiny)))
             if not np.isfinite(rel):
                 raise StepFailure("sensitivity refinement is not finite", step=k, t=float(t))
             S_T = S_T + dS_T
             rels.append(rel)
             stalled = len(rels) > 1 and rel > 0.5 * rels[-2]
-            if rel <= polish_tol or (stalled and rel <= _FLOOR * polish_tol):
-                sst.rate.append(float((rels[-1] / rels[0]) ** (1 / (len(rels) - 1))) if len(rels) > 1 else 0.0)
+            if rel <= self.polish_tol or (stalled and rel <= _FLOOR * self.polish_tol):
+                self.stats.rate.append(float((rels[-1] / rels[0]) ** (1 / (len(rels) - 1))) if len(rels) > 1 else 0.0)
                 return S_T
             if stalled:  # slow with this K*: exact Jacobian once
                 if refreshed:
                     raise StepFailure(f"sensitivity refinement stalls at {rel:.3g} even with a fresh Jacobian",
                                       step=k, t=float(t))
-                refresh(x, x_old, t, h)
+                self._refresh(x, x_old, t, dt)
                 refreshed, rels = True, []
-                S_T = kstar().solve(b.T).T
-        raise StepFailure(f"sensitivity refinement did not converge in {max_refine} sweeps (last {rel:.3g})",
+                S_T = self._kstar().solve(b.T).T
+        raise StepFailure(f"sensitivity refinement did not converge in {self.max_refine} sweeps (last {rel:.3g})",
                           step=k, t=float(t))
-
-    def one_step(x_old, S_old_T, t_old, h, k, depth):
-        """A step of size h (halved on solver failure), polished, with its sensitivities."""
-        nonlocal state
-        t_new = jnp.float64(t_old + h)
-        tic = time.perf_counter()
-        try:
-            x, state = solver.step(state, k, x_old, t_new, jnp.float64(h), bound)
-        except StepFailure as failure:
-            state = solver.state_after_failure(state, failure)
-            if depth >= max_dt_halvings:
-                raise
-            stats.dt_halvings += 1
-            xm, Sm = one_step(x_old, S_old_T, t_old, h / 2, k, depth + 1)
-            return one_step(xm, Sm, t_old + h / 2, h / 2, k, depth + 1)
-        tac = time.perf_counter()
-        sst.wall_time["solver"] += tac - tic
-        x = polish(x, x_old, t_new, jnp.float64(h), k)
-        toc = time.perf_counter()
-        sst.wall_time["polish"] += toc - tac
-        S_T = tangent(x, x_old, t_new, jnp.float64(h), S_old_T, k) if tangents else None
-        sst.wall_time["tangent"] += time.perf_counter() - toc
-        return x, S_T
-
-    def record(t, x, S_T):
-        tic = time.perf_counter()
-        if S_T is None:
-            values.append(jax.tree_util.tree_map(np.asarray, obs(jnp.float64(t), x, params, theta_j)))
-        else:
-            v, tan = obs_tangent(jnp.float64(t), x, params, theta_j, S_T, basis)
-            values.append(jax.tree_util.tree_map(np.asarray, v))
-            tans.append(jax.tree_util.tree_map(lambda a: np.moveaxis(np.asarray(a), 0, -1), tan))
-        times.append(float(t))
-        sst.wall_time["observe"] += time.perf_counter() - tic
-
-    values, tans, times = [], [], []
-    x = x0
-    S_T = np.zeros((P, n)) if tangents else None
-    record(t0, x, S_T)
-    n_steps = max(1, math.ceil((t1 - t0) / dt - 1e-9))
-    t = float(t0)
-    for k in range(1, n_steps + 1):
-        t_new = t0 + k * dt if k < n_steps else float(t1)
-        x_new, S_T = one_step(x, S_T, t, t_new - t, k, 0)
-        r = prob.residual(x_new, x, jnp.float64(t_new), jnp.float64(t_new - t), bound)
-        stats.residual_norm.append(float(np.max(np.abs(r))))
-        stats.time_steps += 1
-        x, t = x_new, t_new
-        record(t, x, S_T)
-    if not isinstance(values[0], dict):
-        raise InputError(f"observe must return a dict of arrays, got {type(values[0]).__name__}")
-    stack = lambda *leaves: np.stack(leaves)  # noqa: E731
-    observed = {"t": np.asarray(times), **jax.tree_util.tree_map(stack, *values)}
-    jac = jax.tree_util.tree_map(stack, *tans) if tangents else None
-    wall = time.perf_counter() - start
-    stats.close(wall)
-    to_np = lambda v: jax.tree_util.tree_map(lambda a: np.asarray(a, dtype=np.float64), unravel(v))  # noqa: E731
-    return Sensitivities(observed=observed, jacobian=jac, theta_names=_names(theta), x=np.asarray(x),
-                         dx_dtheta=None if S_T is None else S_T.T.copy(), stats=stats,
-                         sensitivity_stats=sst, wall_time_s=wall, unravel=to_np)
 
 
 @entry_point
