@@ -92,6 +92,8 @@ LAYOUTS = ("polar", "grid", "graded")
 EDGE_ROWS = ("flux", "half_cell")
 """Temperature rows of the plate-edge points (:class:`Thermal`)."""
 SOLVER_KINDS = ("anm", "newton", "modified_newton")
+STARTS = ("rest", "quasi_static")
+"""Flows at t = 0 (:class:`Mechanics`)."""
 MAX_POINTS = 200_000
 """Largest point cloud a scene may ask for (about ``pi (R2 / dr)^2`` points): checked on load,
 so that a typo in ``dr`` or ``R2`` fails at once instead of exhausting memory."""
@@ -337,13 +339,25 @@ class Thermal(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class Mechanics(_Section):
-    """Penalty factor ``lambda`` (Pa s) of ``p = -lambda tr(epsdot)`` (paper eq. 9)."""
+    """Penalty factor ``lambda`` (Pa s) of ``p = -lambda tr(epsdot)`` (paper eq. 9), and the flow at t = 0.
+
+    ``start``: ``"rest"`` (the default: the plate at rest, the tool turning; the first step's
+    iteration starts there) or ``"quasi_static"`` (the stationary flow the momentum rows hold
+    at T0, solved on the run's cloud before the first step, :mod:`jaxanm.fsw.start`).  The
+    momentum rows are quasi-static (their inertia spins the plate up in ~1e-8 s), so both
+    describe the same physics; from rest Newton's first step does not converge on graded
+    clouds finer than 0.085 mm at the tool edge (docs/notes/start_from_rest.md).  Needs the
+    ``viscous`` effect.
+    """
 
     _name = "mechanics"
     penalty: float = 0.0
+    start: str = "rest"
 
     def _validate(self):
         _check("mechanics.penalty", self.penalty, self.penalty >= 0, "must be >= 0 (Pa s)")
+        _check("mechanics.start", self.start, self.start in STARTS,
+               f"must be one of {STARTS}: the plate at rest at t = 0, or the quasi-static flow at T0")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -531,6 +545,8 @@ class Scene:
             missing = [r for r in EFFECT_REQUIRES.get(e, ()) if r not in have]
             _check("effects", self.effects, not missing,
                    f"effect {e!r} needs {missing} (add them or drop {e!r})")
+        _check("mechanics.start", self.mechanics.start, self.mechanics.start == "rest" or "viscous" in have,
+               "'quasi_static' needs the 'viscous' effect (the flow it starts from); use 'rest'")
         _check("effects", self.effects, not {"lagrangian", "tracers"} <= have,
                "'lagrangian' (moving points) and 'tracers' (fixed points) exclude each other")
         _check("effects", self.effects, not ("lagrangian" in have and self.geometry.layout == "graded"),

@@ -36,6 +36,7 @@ from .geometry import (PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_stencils,
                        neighbour_list)
 from .model import Model, Refit, discretise
 from .scene import Scene
+from .start import StartReport, quasi_static_state
 
 __all__ = ["FSWResult", "run"]
 
@@ -67,6 +68,8 @@ class FSWResult:
         Lagrangian run was rezoned (they differ from ``points`` from the first rezoning on);
         else None (the nodes are the material points).
     rezone_times : times at which the plate points were re-seeded (empty without rezoning).
+    start : with ``mechanics.start = "quasi_static"``, the :class:`~jaxanm.fsw.start.StartReport`
+        of the flow solved at t = 0 (its factorisations are not in ``stats``); else None.
     """
 
     scene: Scene
@@ -83,6 +86,7 @@ class FSWResult:
     tracers: dict | None = None
     nodes: np.ndarray | None = None
     rezone_times: list = dataclasses.field(default_factory=list)
+    start: StartReport | None = None
 
 
 def _rotate(points: np.ndarray, angle: float) -> np.ndarray:
@@ -129,7 +133,8 @@ class _Recorder:
     """Host-side state of a run: moving cloud, material points, probes, saved fields and sections."""
 
     def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_steps: set,
-                 save_times: set | None = None):
+                 save_times: set | None = None, initial: np.ndarray | None = None):
+        # initial: field values (N, len(fields)) at the points at t = 0 (default: the model's rest state)
         # fixed steps save at step numbers; adaptive ones end exactly on the save times
         self.scene, self.model, self.save_steps, self.save_times = scene, model, save_steps, save_times
         cloud = model.cloud
@@ -154,8 +159,11 @@ class _Recorder:
         self.marker_neighbours = neighbour_list(scene.geometry)
         self.tracer_neighbours = neighbour_list(scene.geometry)
         self.refit = Refit()
+        self.start = None  # the StartReport of a quasi-static start, set by run()
         self._save_sections(x0)
-        self._record(0.0, self.points, _full_values(model, model.initial_values(self.points)), save=True)
+        if initial is None:
+            initial = model.initial_values(self.points)
+        self._record(0.0, self.points, _full_values(model, initial), save=True)
 
     def _record(self, t: float, positions: np.ndarray, values: dict, save: bool) -> None:
         """Probe values at every step; fields (and tracers) at the save steps.
@@ -310,7 +318,8 @@ class _Recorder:
                          u=np.asarray(self.saved["u"]), v=np.asarray(self.saved["v"]),
                          T=np.asarray(self.saved["T"]), material=self.model.cloud.material.copy(),
                          probes=probes, sections=sections, stats=stats, solver=solver, tracers=tracers,
-                         nodes=nodes if self.rezone_times else None, rezone_times=list(self.rezone_times))
+                         nodes=nodes if self.rezone_times else None, rezone_times=list(self.rezone_times),
+                         start=self.start)
 
 
 def motion_dt_max(scene: Scene) -> float:
@@ -437,12 +446,17 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     """
     solver = scene.solver.make() if solver is None else solver
     _, stencils, model, params, x0 = discretise(scene)
+    initial, start = None, None
+    if scene.mechanics.start == "quasi_static":
+        x0, start = quasi_static_state(scene, model, stencils)
+        initial = model.values(x0, stencils)
     tm = scene.time
     n_steps = max(1, math.ceil(tm.t_end / tm.dt - 1e-9))
     controller = step_controller(scene, model)
     save_times = [t for t in tm.save_times if t > 0]
     recorder = _Recorder(scene, model, stencils, x0, _save_steps(scene, n_steps),
-                         None if controller is None else set(save_times))
+                         None if controller is None else set(save_times), initial=initial)
+    recorder.start = start
     latest = {"stats": jaxanm.Stats()}
 
     def step_done(t, x, stats):

@@ -1,0 +1,126 @@
+"""The flow at t = 0: the quasi-static velocity the initial temperature holds, not rest.
+
+The momentum rows of :mod:`jaxanm.fsw.model` are quasi-static: their inertia term weighs
+``rho dr^2 / (mu dt)`` against the viscous ones, below 1e-5 at the FSW scenes' dt, so the
+plate spins up within ``rho (R2 - R1)^2 / mu ~ 1e-8 s`` (:mod:`jaxanm.fsw.axisymmetric`) and
+the velocity a step solves for is the stationary flow at the step's temperature.  Started from
+rest (``mechanics.start = "rest"``, the default), the first step's nonlinear iteration must
+travel from V = 0 to that flow, and at n = 0.1324 Newton does not get there on fine clouds
+(docs/notes/start_from_rest.md: the updates overshoot in the slow zone where the strain rate
+is within a decade of eps0 and the viscosity law bends).
+
+``mechanics.start = "quasi_static"`` starts the run from that flow instead:
+:func:`quasi_static_state` solves the stationary momentum rows at T = T0 on the run's own cloud
+and stencils (the scene's residual with the ``viscous`` effect alone: no inertia, mu at T0)
+by Newton with a backtracking line search on the residual, from rest.  The line search is
+what the step solvers lack there: undamped, Newton's updates overshoot in that slow zone and
+diverge on the 0.075 mm graded cloud; damped, it converges from rest on every cloud tried
+(6-13 iterations).  The run's first step then starts next to its root and only adds the
+change of one time step.  (The 1-D Couette profile fitted to the cloud is no better a start:
+13 -> 10 iterations on the 0.075 mm graded cloud, but 10 -> 17 on a coarse graded one, where
+its MLS fit oscillates; the note has the table.)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .._x64 import entry_point
+from ..errors import StepFailure
+from ..linalg import factorize
+from ..solvers import Problem
+from ..stats import Stats
+from .model import Model, make_model
+
+__all__ = ["StartReport", "quasi_static_state"]
+
+_SUFFICIENT_DECREASE = 1e-4
+"""Armijo's constant: a step of length a must cut |R|_2 by at least this fraction of a."""
+
+_MIN_STEP = 2.0 ** -12
+"""Shortest line-search step; below it the iteration is declared failed."""
+
+
+@dataclasses.dataclass
+class StartReport:
+    """How the start flow was solved.
+
+    Attributes
+    ----------
+    iterations : int
+        Newton iterations (one tangent and one factorisation each).
+    step_lengths : list of float
+        The line search's step length of each iteration (1: a full Newton step).
+    residual_norms : list of float
+        ``|R|_2`` of the scaled rows at each iterate, the start's first.
+    stats : jaxanm.Stats
+        Counters and wall time of the solve (factorisations, Jacobians, residuals).
+    """
+
+    iterations: int
+    step_lengths: list
+    residual_norms: list
+    stats: Stats
+
+
+def _line_search(problem: Problem, x, dx, r_norm: float, args: tuple):
+    """Longest step ``a`` in 1, 1/2, 1/4, ... with ``|R(x + a dx)|_2 <= (1 - c a) |R(x)|_2``;
+    returns ``(a, x + a dx, R there)``, or None if no step down to :data:`_MIN_STEP` decreases."""
+    a = 1.0
+    while a >= _MIN_STEP:
+        x_new = x + a * dx
+        r_new = problem.residual(x_new, *args)
+        if np.all(np.isfinite(r_new)) and np.linalg.norm(r_new) <= (1.0 - _SUFFICIENT_DECREASE * a) * r_norm:
+            return a, x_new, r_new
+        a *= 0.5
+    return None
+
+
+def _damped_newton(problem: Problem, x, args: tuple, tol: float, max_iter: int):
+    """Newton with a backtracking line search on ``|R|_2``, from ``x``; returns ``(x, report)``.
+
+    Converged when a full step's scaled change ``|dx| / |x|`` is at most ``tol``.
+    """
+    r = problem.residual(x, *args)
+    lengths, norms = [], [float(np.linalg.norm(r))]
+    for it in range(1, max_iter + 1):
+        dx = -factorize(problem.tangent(x, *args), problem.stats).solve(r)
+        found = _line_search(problem, x, dx, norms[-1], args)
+        if found is None:
+            raise StepFailure(f"the quasi-static start flow: no step along Newton's direction reduces the "
+                              f"residual (iteration {it}, |R|_2 = {norms[-1]:.3g})", step=0, t=0.0,
+                              residual_norm=norms[-1])
+        a, x, r = found
+        lengths.append(a)
+        norms.append(float(np.linalg.norm(r)))
+        if a == 1.0 and problem.norm(dx) <= tol * problem.norm(x):
+            return x, StartReport(it, lengths, norms, problem.stats)
+    raise StepFailure(f"the quasi-static start flow did not converge in {max_iter} iterations "
+                      f"(|R|_2 = {norms[-1]:.3g}, last step length {lengths[-1]:g})", step=0, t=0.0,
+                      residual_norm=norms[-1])
+
+
+@entry_point
+def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_iter: int = 50):
+    """Initial unknowns of ``model`` with the quasi-static flow at T0; returns ``(x0, StartReport)``.
+
+    The velocity is the root of the stationary momentum rows at T = T0 on the model's cloud
+    and ``stencils`` (:func:`jaxanm.fsw.model.make_model` of the scene with ``viscous`` alone,
+    whose rows are the scene's without the inertia term), from rest, to ``tol`` in the
+    scaled change of a full Newton step (1e-8: Newton converges quadratically there, so the
+    state is then exact to ~1e-15, and the first step only adds the change of its own time
+    step); T = T0.  Raises :class:`jaxanm.StepFailure` if
+    the iteration does not converge in ``max_iter`` Newton iterations.
+    """
+    flow = make_model(scene.with_overrides({"effects": "viscous"}), model.cloud)
+    params = flow.params(model.cloud.points, stencils)
+    problem = Problem(flow.residual, flow.scale(), Stats(), "sparse", flow.sparsity)
+    rest = flow.initial_state(model.cloud.points)
+    one = np.float64(1.0)  # t and dt: the rows hold no time derivative
+    velocity, report = _damped_newton(problem, rest, (rest, one, one, params), tol, max_iter)
+    x0 = model.initial_state(model.cloud.points).reshape(len(model.fields), -1)
+    for k, name in enumerate(("u", "v")):
+        x0[model.fields.index(name)] = velocity.reshape(2, -1)[k]
+    return x0.reshape(-1), report
