@@ -93,3 +93,27 @@ def test_quasi_static_start_reaches_the_states_of_a_start_from_rest():
     # ... and it is the flow the run from rest reaches in its first step, up to that step's
     # change (heating softens the plate, the points move): 3.1e-4 omega R1 measured
     assert np.abs(quasi.v[0] - rest.v[1]).max() < 1e-3 * U
+
+
+def test_quasi_static_run_resumes_bit_identically(tmp_path, monkeypatch):
+    # the start is solved once: a resumed run takes its state (and the start's report) from
+    # the checkpoint, without solving it again, and matches the uninterrupted run bit for bit
+    scene = load_scene("fsw_small").with_overrides(
+        {"time.t_end": 4e-4, "time.save": [2e-4], "solver.kind": "modified_newton",
+         "mechanics.start": "quasi_static"})
+    ref = simulate.run(scene)
+
+    def stop(t, stats):
+        if stats.time_steps == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        simulate.run(scene, callback=stop, checkpoint=tmp_path / "c.pkl", checkpoint_every=2)
+    def unused(*args, **kwargs):
+        raise AssertionError("a resumed run solved its start flow again")
+
+    monkeypatch.setattr(simulate, "quasi_static_state", unused)
+    res = simulate.run(scene, checkpoint=tmp_path / "c.pkl", resume=True)
+    for key in ("t", "points", "u", "v", "T"):
+        np.testing.assert_array_equal(getattr(res, key), getattr(ref, key), err_msg=key)
+    assert res.start.residual_norms == ref.start.residual_norms

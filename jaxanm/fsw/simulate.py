@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from typing import Callable
 
 import numpy as np
@@ -447,7 +448,8 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     solver = scene.solver.make() if solver is None else solver
     _, stencils, model, params, x0 = discretise(scene)
     initial, start = None, None
-    if scene.mechanics.start == "quasi_static":
+    resuming = resume and checkpoint is not None and os.path.exists(checkpoint)
+    if scene.mechanics.start == "quasi_static" and not resuming:  # a resumed run's state is in its checkpoint
         x0, start = quasi_static_state(scene, model, stencils)
         initial = model.values(x0, stencils)
     tm = scene.time
