@@ -110,9 +110,9 @@ def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_ite
     and ``stencils`` (:func:`jaxanm.fsw.model.make_model` of the scene with ``viscous`` alone,
     whose rows are the scene's without the inertia term), from rest, to ``tol`` in the
     scaled change of a full Newton step (1e-8: Newton converges quadratically there, so the
-    state is then exact to ~1e-15, and the first step only adds the change of its own time
-    step); T = T0.  Raises :class:`jaxanm.StepFailure` if
-    the iteration does not converge in ``max_iter`` Newton iterations.
+    state is then a root to round-off, and the first step only adds the change of its own
+    time step); T = T0.  Raises :class:`jaxanm.StepFailure` if the iteration does not
+    converge in ``max_iter`` Newton iterations or its line search finds no decrease.
     """
     flow = make_model(scene.with_overrides({"effects": "viscous"}), model.cloud)
     params = flow.params(model.cloud.points, stencils)
