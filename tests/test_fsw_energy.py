@@ -84,25 +84,67 @@ def test_half_cell_energy_error_falls_faster_than_the_flux_rows():
     assert half[-1] < 0.02 < 0.05 < flux[-1], (half, flux)
 
 
-@pytest.mark.parametrize("tool_conduction", [False, True])
-def test_half_cell_row_is_the_edge_cell_balance(tool_conduction):
+def _graded_stored_over_beta_Ph_t(edge_source: str) -> float:
+    """Stored heat over ``beta P_h t`` after one 1 ms step of the paper's power law (n = 0.1324)
+    on a graded cloud (0.1 mm at the tool edge, fsw_graded's grading), every edge insulated.
+
+    ``P_h`` is the discrete flow's own dissipated power (fine quadrature of ``3 mu epsbar^2``
+    of its MLS velocity), so what is measured is the heat rows' balance, not the flow's error.
+    """
+    scene = Scene(effects=("viscous", "conduction", "dissipation"),
+                  geometry=Geometry(layout="graded", dr=1e-4, band=2e-4, grading=1.25, dr_far=3.75e-4, c=0.3),
+                  material=Material(eps0=0.1), time=Time(dt=1e-3, t_end=1e-3),
+                  thermal=Thermal(edge_rows="half_cell", edge_source=edge_source))
+    cloud, st, model, params, x0 = discretise(scene)
+    sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=1e-3, dt=1e-3,
+                           solver=jaxanm.Newton(tol=1e-10), scale=model.scale(),
+                           jacobian="sparse", sparsity=model.sparsity)
+    values = model.values(sol.xs[-1], st)
+    result = types.SimpleNamespace(scene=scene, points=cloud.points[None],
+                                   **{f: values[None, :, i] for i, f in enumerate(model.fields)})
+    return stored_heat(result) / (scene.material.beta * dissipated_power(result) * 1e-3)
+
+
+def test_exponential_edge_source_keeps_the_steep_power_law_heat():
+    """At n = 0.1324 the source falls by e within 0.088 mm of the tool edge, so once the edge
+    spacing resolves it (0.1 mm) the one-point half-cell source ``q(R1) dr/2`` over-counts
+    (stored / beta P_h t = 1.050 measured; the e-folding estimate of the over-count is 0.135 for
+    the continuum's peak, less for the discrete q(R1)).  Integrated along its local decay
+    (``edge_source = "exponential"``) it stores what the flow dissipates: 1.005 measured.
+    """
+    # 0.02: the collocation's own balance error, as in the Newtonian test above (0.0062 at the
+    # paper's dr there), well below the 0.05 that the point quadrature's over-count makes here.
+    assert _graded_stored_over_beta_Ph_t("exponential") == pytest.approx(1.0, abs=0.02)
+
+
+@pytest.mark.slow
+def test_point_edge_source_overcounts_the_steep_power_law_heat():
+    assert _graded_stored_over_beta_Ph_t("point") > 1.03  # the 0.05 over-count measured above
+
+
+@pytest.mark.parametrize("tool_conduction,edge_source",
+                         [(False, "point"), (True, "point"), (True, "exponential")])
+def test_half_cell_row_is_the_edge_cell_balance(tool_conduction, edge_source):
     """On quadratic u, v, T (reproduced exactly by the MLS stencils) the plate-edge row equals
-    ``d (rho Cp T_t - k Lap T - q) [+ d (rho_t Cp_t T_t - k_t Lap T)] - (k - k_t) dT/dr``,
-    d = dr/2, evaluated from the analytic fields (up to the row's positive scale)."""
+    ``d (rho Cp T_t - k Lap T) - w q [+ d (rho_t Cp_t T_t - k_t Lap T)] - (k - k_t) dT/dr``,
+    d = dr/2, evaluated from the analytic fields (up to the row's positive scale).  The source's
+    width is ``w = d`` (``"point"``), or ``w = lam (1 - exp(-d / lam))`` with ``1 / lam =
+    -(dq/dr) / q`` where q decays outwards and ``w = d`` where it does not (``"exponential"``)."""
     effects = ("viscous", "conduction", "dissipation") + (("tool_conduction",) if tool_conduction else ())
     scene = Scene(effects=effects, geometry=Geometry(dr=7.5e-4, c=0.3),
-                  material=Material(n=0.3, eps0=0.5), thermal=Thermal(edge_rows="half_cell"))
+                  material=Material(n=0.3, eps0=0.5),
+                  thermal=Thermal(edge_rows="half_cell", edge_source=edge_source))
     cloud, st, model, params, _ = discretise(scene)
     m, tl, th, g = scene.material, scene.tool, scene.thermal, scene.geometry
     pts, dt = cloud.points, 1e-4
     x, y = pts[:, 0], pts[:, 1]
     L = g.R2
     u = 1e-2 * (0.01 + 3 * x - 2 * y + 40 / L * x * x - 70 / L * x * y + 25 / L * y * y)
-    v = 1e-2 * (-0.02 + x + 4 * y - 30 / L * x * x + 20 / L * x * y + 60 / L * y * y)
+    v = 1e-2 * (-0.02 + x - 40 * y - 30 / L * x * x + 20 / L * x * y + 60 / L * y * y)
     T = 420 + 3e3 * x - 2e3 * y + 5e6 * x * x - 3e6 * x * y + 4e6 * y * y
     T_old = 0.999 * T
     ux, uy = 1e-2 * (3 + 80 / L * x - 70 / L * y), 1e-2 * (-2 - 70 / L * x + 50 / L * y)
-    vx, vy = 1e-2 * (1 - 60 / L * x + 20 / L * y), 1e-2 * (4 + 20 / L * x + 120 / L * y)
+    vx, vy = 1e-2 * (1 - 60 / L * x + 20 / L * y), 1e-2 * (-40 + 20 / L * x + 120 / L * y)
     Tx, Ty, lapT = 3e3 + 1e7 * x - 3e6 * y, -2e3 - 3e6 * x + 8e6 * y, 1e7 + 8e6
     e2 = 2 / 3 * (ux ** 2 + vy ** 2 + 0.5 * (uy + vx) ** 2)
     q = 3 * m.beta * m.K / 3 * th.T0 ** m.A * (e2 + m.eps0 ** 2) ** ((m.n - 1) / 2) * e2
@@ -110,7 +152,21 @@ def test_half_cell_row_is_the_edge_cell_balance(tool_conduction):
     r = np.maximum(np.hypot(x, y), 1e-12)  # (the centre point is no edge point)
     dTdr = (Tx * x + Ty * y) / r
     d = g.dr / 2
-    expect = d * (m.rho * m.Cp * dTdt - m.k * lapT - q) - m.k * dTdr
+    width = np.full_like(q, d)
+    if edge_source == "exponential":
+        # dq/dr by the chain rule on e2 (the hand-written second derivatives of u, v)
+        exy, exy_x, exy_y = 0.5 * (uy + vx), 0.5e-2 * (-70 - 60) / L, 0.5e-2 * (50 + 20) / L
+        e2x = 4 / 3 * (ux * 80e-2 / L + vy * 20e-2 / L + 2 * exy * exy_x)
+        e2y = 4 / 3 * (ux * -70e-2 / L + vy * 120e-2 / L + 2 * exy * exy_y)
+        er2 = e2 + m.eps0 ** 2
+        dq_de2 = q / e2 * (1 + 0.5 * (m.n - 1) * e2 / er2)
+        dqdr = dq_de2 * (e2x * x + e2y * y) / r
+        lam = -q / dqdr
+        decays = dqdr < 0
+        width[decays] = lam[decays] * (1 - np.exp(-d / lam[decays]))
+        edge = cloud.kind == PLATE_EDGE
+        assert 0 < np.count_nonzero(decays[edge]) < np.count_nonzero(edge)  # both branches tested
+    expect = d * (m.rho * m.Cp * dTdt - m.k * lapT) - width * q - m.k * dTdr
     if tool_conduction:
         expect = expect + d * (tl.rho * tl.Cp * dTdt - tl.k * lapT) + tl.k * dTdr
     with jaxanm.float64():

@@ -108,6 +108,9 @@ def test_max_rate_reaches_modified_newton():
     ({"effects": "dissipation,conduction"}, "effects", "needs ['viscous']"),
     ({"effects": "viscous,lagrangian,tracers"}, "effects", "exclude each other"),
     ({"effects": ""}, "effects", "at least one"),
+    ({"thermal.edge_source": "midpoint"}, "thermal.edge_source", "must be one of"),
+    ({"thermal.edge_rows": "flux", "thermal.edge_source": "exponential"}, "thermal.edge_source",
+     'needs thermal.edge_rows = "half_cell"'),
     ({"material.nn": 1}, "override key", "known keys"),
 ])
 def test_bad_values_name_field_value_and_rule(overrides, field, allowed):

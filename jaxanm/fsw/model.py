@@ -147,7 +147,7 @@ def _old_value(st, fold):
 
 
 def _momentum_rows(flags: Effects, st, p, dt, vel_nodal, vel_old_nodal, temp):
-    """u and v rows, and ``mu epsbar^2`` at the points (for the dissipation)."""
+    """u and v rows, velocity, and ``mu epsbar^2`` and its gradient at the points (the dissipation)."""
     c, kind = p["c"], p["kind"]
     ops = [st.phi, st.dx, st.dy, st.dxx, st.dxy, st.dyy]
     u, ux, uy, uxx, uxy, uyy = _gather(st, vel_nodal[0], ops)
@@ -187,11 +187,33 @@ def _momentum_rows(flags: Effects, st, p, dt, vel_nodal, vel_old_nodal, temp):
     plate, ring = kind == PLATE, kind == RING
     rows = [jnp.where(plate, -fx * sm, jnp.where(ring, u, u - ub) / c["U"]),
             jnp.where(plate, -fy * sm, jnp.where(ring, v, v - vb) / c["U"])]
-    return rows, (u, v), mu * e2
+    # grad(mu epsbar^2) = mu (grad epsbar^2 + epsbar^2 grad ln mu): the source's local decay
+    grad_mu_e2 = (mu * (de2x + e2 * lx), mu * (de2y + e2 * ly))
+    return rows, (u, v), (mu * e2, grad_mu_e2)
 
 
-def _heat_rows(flags: Effects, edge_rows: str, st, p, dt, T_old_nodal, temp, vel, mu_e2):
-    """T rows: heat equations, tool-edge interface conditions, the ring's edge condition."""
+def _edge_source_width(d, q, dq_dn):
+    """Width ``int_0^d exp(-s / lam) ds`` over which the edge half cell collects ``q(R1)``.
+
+    ``1 / lam = -dq_dn / q`` is the source's local decay along the outward normal, from the MLS
+    derivatives at the plate-edge point; the width is ``d (1 - exp(-x)) / x`` with
+    ``x = d / lam``.  A source that does not decay there (x <= 0, or q = 0 at rest) is counted
+    over the whole half cell ``d``, as the one-point quadrature does.
+    """
+    x = jnp.where(q > 0, -d * dq_dn / jnp.where(q > 0, q, 1.0), 0.0)
+    x = jnp.where(x > 0, x, 0.0)
+    # (1 - exp(-x)) / x, by its Taylor polynomial where the quotient loses digits (error < x^3 / 24)
+    small = x < 1e-3
+    x_safe = jnp.where(small, 1.0, x)
+    return d * jnp.where(small, 1.0 - x / 2.0 + x * x / 6.0, -jnp.expm1(-x_safe) / x_safe)
+
+
+def _heat_rows(flags: Effects, edge_rows: str, edge_source: str, st, p, dt, T_old_nodal, temp, vel,
+               source):
+    """T rows: heat equations, tool-edge interface conditions, the ring's edge condition.
+
+    ``source`` is ``(mu epsbar^2, grad(mu epsbar^2))`` at the points (None without ``viscous``).
+    """
     c, kind, partner, normal = p["c"], p["kind"], p["partner"], p["normal"]
     T, Tx, Ty, lapT = temp
     dTdt = (T - _old_value(st, T_old_nodal)) / dt
@@ -199,7 +221,7 @@ def _heat_rows(flags: Effects, edge_rows: str, st, p, dt, T_old_nodal, temp, vel
         dTdt = dTdt + vel[0] * Tx + vel[1] * Ty
     plate_heat = c["rho"] * c["Cp"] * dTdt - c["k"] * lapT
     if flags.dissipation:
-        plate_heat = plate_heat - 3.0 * c["beta"] * mu_e2
+        plate_heat = plate_heat - 3.0 * c["beta"] * source[0]
     s_plate = c["dr"] ** 2 / (c["Ts"] * (c["k"] + c["rho"] * c["Cp"] * c["dr"] ** 2 / dt))
     dTdn = Tx * normal[:, 0] + Ty * normal[:, 1]
     s_flux = c["dr"] / (c["k"] * c["Ts"])
@@ -220,6 +242,11 @@ def _heat_rows(flags: Effects, edge_rows: str, st, p, dt, T_old_nodal, temp, vel
         # flux row plus the half cell's heat capacity
         d = 0.5 * c["dr"]
         stored = d * plate_heat + (d * tool_heat[partner] if flags.tool_conduction else 0.0)
+        if flags.dissipation and edge_source == "exponential":
+            # the source over [R1, R1 + d] along its local decay instead of q(R1) d
+            q, (qx, qy) = source
+            width = _edge_source_width(d, q, qx * normal[:, 0] + qy * normal[:, 1])
+            stored = stored + (d - width) * 3.0 * c["beta"] * q
         s_edge = 1.0 / (c["Ts"] * (c["k"] / c["dr"] + d * c["rho"] * c["Cp"] / dt))
         plate_edge_row = (stored - edge_flux) * s_edge
     else:
@@ -230,7 +257,7 @@ def _heat_rows(flags: Effects, edge_rows: str, st, p, dt, T_old_nodal, temp, vel
 
 
 @functools.lru_cache(maxsize=None)
-def _residual_for(flags: Effects, edge_rows: str):
+def _residual_for(flags: Effects, edge_rows: str, edge_source: str):
     """The residual function of an effect combination (one function object per combination)."""
     nf = len(flags.fields)
 
@@ -239,12 +266,12 @@ def _residual_for(flags: Effects, edge_rows: str):
         st = p["st"]
         N = p["kind"].shape[0]
         X, Xo = x.reshape(nf, N), x_old.reshape(nf, N)
-        rows, vel, mu_e2 = [], None, None
+        rows, vel, source = [], None, None
         temp = _gather(st, X[-1], [st.phi, st.dx, st.dy, st.dxx + st.dyy]) if flags.conduction else None
         if flags.viscous:
-            rows, vel, mu_e2 = _momentum_rows(flags, st, p, dt, X[:2], Xo[:2], temp)
+            rows, vel, source = _momentum_rows(flags, st, p, dt, X[:2], Xo[:2], temp)
         if flags.conduction:
-            rows.append(_heat_rows(flags, edge_rows, st, p, dt, Xo[-1], temp, vel, mu_e2))
+            rows.append(_heat_rows(flags, edge_rows, edge_source, st, p, dt, Xo[-1], temp, vel, source))
         return jnp.concatenate(rows)
 
     return residual
@@ -270,7 +297,8 @@ class Model:
     @property
     def residual(self):
         """The step residual (one function object per effect combination: no recompiles)."""
-        return _residual_for(self.effects, self.scene.thermal.edge_rows)
+        th = self.scene.thermal
+        return _residual_for(self.effects, th.edge_rows, th.edge_source)
 
     @property
     def size(self) -> int:
