@@ -41,7 +41,7 @@ from jaxanm.fsw.model import discretise
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run
 from jaxanm.linalg import Factorization
-from jaxanm.solvers import ANM, Problem, SeriesPath
+from jaxanm.solvers import ANM, Problem, SeriesPath, _ANMStep
 
 EXACT_TOL = 1e-13
 """The reference x* of a step: full Newton until the relative correction is below this."""
@@ -83,14 +83,13 @@ def anm_acceptance(P: Problem, fact, coeffs, d_s, args, tol: float):
     """(solves, accepted state) of the order-adaptive ANM with the "state" criterion: the first
     order j >= 2 whose a_max reaches 1 and whose end point passes the end-point check (one more
     residual and solve each time it is tried), by the stepper's own acceptance
-    (``jaxanm.solvers._ANMStepper``); None if no order up to ``len(coeffs)`` passes."""
-    stepper = ANM(order=coeffs.shape[0], tol=tol, criterion="state", adaptive=True).init(P)
-    stepper.fact = fact
+    (``jaxanm.solvers._ANMStep``); None if no order up to ``len(coeffs)`` passes."""
+    attempt = _ANMStep(ANM(order=coeffs.shape[0], tol=tol, criterion="state", adaptive=True), P, fact)
     checks = P.stats.residual_evaluations  # each end-point check evaluates one residual
     for j in range(2, coeffs.shape[0] + 1):
-        d_end = stepper._accept_early(coeffs[:j], d_s, *args)
-        if d_end is not None:
-            return j + P.stats.residual_evaluations - checks, d_end
+        accepted = attempt._accept_early(coeffs[:j], d_s, *args)
+        if accepted is not None:
+            return j + P.stats.residual_evaluations - checks, accepted[0]
     return None
 
 
