@@ -161,9 +161,9 @@ def test_half_cell_row_is_the_edge_cell_balance(tool_conduction, edge_source):
         er2 = e2 + m.eps0 ** 2
         dq_de2 = q / e2 * (1 + 0.5 * (m.n - 1) * e2 / er2)
         dqdr = dq_de2 * (e2x * x + e2y * y) / r
-        lam = -q / dqdr
         decays = dqdr < 0
-        width[decays] = lam[decays] * (1 - np.exp(-d / lam[decays]))
+        lam = -q[decays] / dqdr[decays]
+        width[decays] = lam * (1 - np.exp(-d / lam))
         edge = cloud.kind == PLATE_EDGE
         assert 0 < np.count_nonzero(decays[edge]) < np.count_nonzero(edge)  # both branches tested
     expect = d * (m.rho * m.Cp * dTdt - m.k * lapT) - width * q - m.k * dTdr
