@@ -134,8 +134,10 @@ class _Recorder:
     """Host-side state of a run: moving cloud, material points, probes, saved fields and sections."""
 
     def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_steps: set,
-                 save_times: set | None = None, initial: np.ndarray | None = None):
-        # initial: field values (N, len(fields)) at the points at t = 0 (default: the model's rest state)
+                 save_times: set | None = None, initial: np.ndarray | None = None,
+                 start: StartReport | None = None):
+        # initial: field values (N, len(fields)) at the points at t = 0 (default: the model's rest
+        # state); start: the StartReport of a quasi-static start
         # fixed steps save at step numbers; adaptive ones end exactly on the save times
         self.scene, self.model, self.save_steps, self.save_times = scene, model, save_steps, save_times
         cloud = model.cloud
@@ -160,7 +162,7 @@ class _Recorder:
         self.marker_neighbours = neighbour_list(scene.geometry)
         self.tracer_neighbours = neighbour_list(scene.geometry)
         self.refit = Refit()
-        self.start = None  # the StartReport of a quasi-static start, set by run()
+        self.start = start
         self._save_sections(x0)
         if initial is None:
             initial = model.initial_values(self.points)
@@ -457,8 +459,7 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     controller = step_controller(scene, model)
     save_times = [t for t in tm.save_times if t > 0]
     recorder = _Recorder(scene, model, stencils, x0, _save_steps(scene, n_steps),
-                         None if controller is None else set(save_times), initial=initial)
-    recorder.start = start
+                         None if controller is None else set(save_times), initial=initial, start=start)
     latest = {"stats": jaxanm.Stats()}
 
     def step_done(t, x, stats):

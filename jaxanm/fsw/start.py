@@ -30,7 +30,7 @@ import numpy as np
 from .._x64 import entry_point
 from ..errors import StepFailure
 from ..linalg import factorize
-from ..solvers import Problem
+from ..solvers import Problem, _relative_change
 from ..stats import Stats
 from .model import Model, make_model
 
@@ -95,7 +95,7 @@ def _damped_newton(problem: Problem, x, args: tuple, tol: float, max_iter: int):
         a, x, r = found
         lengths.append(a)
         norms.append(float(np.linalg.norm(r)))
-        if a == 1.0 and problem.norm(dx) <= tol * problem.norm(x):
+        if a == 1.0 and _relative_change(problem, dx, x) <= tol:
             return x, StartReport(it, lengths, norms, problem.stats)
     raise StepFailure(f"the quasi-static start flow did not converge in {max_iter} iterations "
                       f"(|R|_2 = {norms[-1]:.3g}, last step length {lengths[-1]:g})", step=0, t=0.0,
