@@ -33,18 +33,25 @@ def _couette_power_newtonian(scene) -> float:
     return 4.0 * math.pi * mu * om ** 2 * g.R1 ** 2 * g.R2 ** 2 / (g.R2 ** 2 - g.R1 ** 2)
 
 
+def _one_step(scene):
+    """``(cloud, stencils, model, x)`` after one step of ``scene.time.dt`` from rest, by Newton
+    to 1e-10 (the discrete solution to round-off)."""
+    cloud, st, model, params, x0 = discretise(scene)
+    dt = scene.time.dt
+    sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=dt, dt=dt,
+                           solver=jaxanm.Newton(tol=1e-10), scale=model.scale(),
+                           jacobian="sparse", sparsity=model.sparsity)
+    return cloud, st, model, sol.xs[-1]
+
+
 def _stored_over_beta_P_t(dr: float, edge_rows: str) -> float:
     scene = Scene(effects=("viscous", "conduction", "dissipation"),
                   geometry=Geometry(dr=dr, c=0.3), material=Material(n=1.0, eps0=1e-4),
                   time=Time(dt=1e-3, t_end=1e-3), thermal=Thermal(edge_rows=edge_rows))
-    cloud, st, model, params, x0 = discretise(scene)
-    sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=1e-3, dt=1e-3,
-                           solver=jaxanm.Newton(tol=1e-10), scale=model.scale(),
-                           jacobian="sparse", sparsity=model.sparsity)
+    cloud, st, model, x = _one_step(scene)
     g, m = scene.geometry, scene.material
     pts, w = annulus_quadrature(g.R1, g.R2)
-    T = np.asarray(mls.value(evaluate_stencils(cloud.points, cloud.n_tool, g, pts),
-                             model.split(sol.xs[-1])["T"]))
+    T = np.asarray(mls.value(evaluate_stencils(cloud.points, cloud.n_tool, g, pts), model.split(x)["T"]))
     stored = float(np.sum(w * m.rho * m.Cp * (T - scene.thermal.T0)))
     return stored / (m.beta * _couette_power_newtonian(scene) * 1e-3)
 
@@ -95,11 +102,8 @@ def _graded_stored_over_beta_Ph_t(edge_source: str) -> float:
                   geometry=Geometry(layout="graded", dr=1e-4, band=2e-4, grading=1.25, dr_far=3.75e-4, c=0.3),
                   material=Material(eps0=0.1), time=Time(dt=1e-3, t_end=1e-3),
                   thermal=Thermal(edge_rows="half_cell", edge_source=edge_source))
-    cloud, st, model, params, x0 = discretise(scene)
-    sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=1e-3, dt=1e-3,
-                           solver=jaxanm.Newton(tol=1e-10), scale=model.scale(),
-                           jacobian="sparse", sparsity=model.sparsity)
-    values = model.values(sol.xs[-1], st)
+    cloud, st, model, x = _one_step(scene)
+    values = model.values(x, st)
     result = types.SimpleNamespace(scene=scene, points=cloud.points[None],
                                    **{f: values[None, :, i] for i, f in enumerate(model.fields)})
     return stored_heat(result) / (scene.material.beta * dissipated_power(result) * 1e-3)
