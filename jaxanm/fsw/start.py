@@ -24,6 +24,7 @@ its MLS fit oscillates; the note has the table.)
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 
@@ -113,7 +114,9 @@ def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_ite
     state is then a root to round-off, and the first step only adds the change of its own
     time step); T = T0.  Raises :class:`jaxanm.StepFailure` if the iteration does not
     converge in ``max_iter`` Newton iterations or its line search finds no decrease.
+    The report's ``stats.wall_time_s`` is the whole start, compilation included.
     """
+    began = time.perf_counter()
     flow = make_model(scene.with_overrides({"effects": "viscous"}), model.cloud)
     params = flow.params(model.cloud.points, stencils)
     problem = Problem(flow.residual, flow.scale(), Stats(), "sparse", flow.sparsity)
@@ -123,4 +126,5 @@ def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_ite
     x0 = model.initial_state(model.cloud.points).reshape(len(model.fields), -1)
     for k, name in enumerate(("u", "v")):
         x0[model.fields.index(name)] = velocity.reshape(2, -1)[k]
+    report.stats.close(time.perf_counter() - began)
     return x0.reshape(-1), report
