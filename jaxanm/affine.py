@@ -69,12 +69,9 @@ def _affine(eqn, dep: list, aff: list) -> bool:
     return False
 
 
-def split_affine(fun: Callable, x, *args) -> AffineSplit:
-    """Trace ``fun(x, *args)`` (nested ``jit`` calls inlined) and split it at the affine frontier.
-
-    ``args`` are example values (shapes and dtypes matter, values do not); the returned
-    functions take ``(x, *args)`` and ``(frontier, *args)`` with ``args`` of the same structure.
-    """
+def _trace(fun: Callable, x, args):
+    """The closed jaxpr of ``fun(x, *args)`` over flat arguments, with nested ``jit`` calls
+    inlined so that their insides are classified; f must have one array output."""
     flat_args, tree = jax.tree_util.tree_flatten(args)
 
     def flat_fun(x, *flat):
@@ -82,13 +79,18 @@ def split_affine(fun: Callable, x, *args) -> AffineSplit:
 
     with jax.disable_jit():  # inline jnp's internal jit calls, so that their insides are classified
         closed = jax.make_jaxpr(flat_fun)(x, *flat_args)
-    jaxpr, consts = closed.jaxpr, closed.consts
-    if len(jaxpr.outvars) != 1:
-        raise ValueError(f"split_affine needs a function with one array output, got {len(jaxpr.outvars)}")
+    if len(closed.jaxpr.outvars) != 1:
+        raise ValueError(f"split_affine needs a function with one array output, got {len(closed.jaxpr.outvars)}")
+    return closed
+
+
+def _classify(jaxpr):
+    """Each equation's kind ("const": independent of x, "affine", "rest"), the affine variables,
+    and the rest equations that multiply or divide by a constant (id(eqn) -> x operand's index)."""
     depends = {jaxpr.invars[0]}
     affine = {jaxpr.invars[0]}
     kinds = []
-    scaled = {}  # rest equations that multiply or divide by a constant: id(eqn) -> x operand's index
+    scaled = {}
     for eqn in jaxpr.eqns:
         ins = [v for v in eqn.invars]
         dep = [isinstance(v, jex_core.Var) and v in depends for v in ins]
@@ -104,6 +106,11 @@ def split_affine(fun: Callable, x, *args) -> AffineSplit:
         depends.update(eqn.outvars)
         if is_affine:
             affine.update(eqn.outvars)
+    return kinds, affine, scaled
+
+
+def _frontier(jaxpr, kinds, affine) -> list:
+    """The affine variables that a rest equation or the output consumes, in order of first use."""
     frontier, seen = [], set()
 
     def mark(v):
@@ -117,17 +124,33 @@ def split_affine(fun: Callable, x, *args) -> AffineSplit:
                 mark(v)
     for v in jaxpr.outvars:
         mark(v)
+    return frontier
 
-    def evaluate(env, eqns):
-        for eqn in eqns:
-            vals = [v.val if isinstance(v, jex_core.Literal) else env[v] for v in eqn.invars]
-            if id(eqn) in scaled:  # a constant factor: linear for jet (jaxanm.jet_scale)
-                i = scaled[id(eqn)]
-                out = scale(vals[i], vals[1 - i], eqn.primitive.name)
-            else:
-                out = eqn.primitive.bind(*vals, **eqn.params)
-            for var, val in zip(eqn.outvars, out if eqn.primitive.multiple_results else [out]):
-                env[var] = val
+
+def _evaluate(env: dict, eqns, scaled: dict) -> None:
+    """Bind ``eqns`` in order on the values in ``env`` (variable -> value), adding their outputs;
+    the ``scaled`` ones through :func:`jaxanm.jet_scale.scale`."""
+    for eqn in eqns:
+        vals = [v.val if isinstance(v, jex_core.Literal) else env[v] for v in eqn.invars]
+        if id(eqn) in scaled:  # a constant factor: linear for jet (jaxanm.jet_scale)
+            i = scaled[id(eqn)]
+            out = scale(vals[i], vals[1 - i], eqn.primitive.name)
+        else:
+            out = eqn.primitive.bind(*vals, **eqn.params)
+        for var, val in zip(eqn.outvars, out if eqn.primitive.multiple_results else [out]):
+            env[var] = val
+
+
+def split_affine(fun: Callable, x, *args) -> AffineSplit:
+    """Trace ``fun(x, *args)`` (nested ``jit`` calls inlined) and split it at the affine frontier.
+
+    ``args`` are example values (shapes and dtypes matter, values do not); the returned
+    functions take ``(x, *args)`` and ``(frontier, *args)`` with ``args`` of the same structure.
+    """
+    closed = _trace(fun, x, args)
+    jaxpr, consts = closed.jaxpr, closed.consts
+    kinds, affine, scaled = _classify(jaxpr)
+    frontier = _frontier(jaxpr, kinds, affine)
 
     def start_env(x_or_none, flat):
         env = dict(zip(jaxpr.constvars, consts))
@@ -142,14 +165,14 @@ def split_affine(fun: Callable, x, *args) -> AffineSplit:
     def linear(x, *args):
         """Frontier values: the affine intermediates that the non-affine part consumes."""
         env = start_env(x, jax.tree_util.tree_leaves(args))
-        evaluate(env, first_part)
+        _evaluate(env, first_part, scaled)
         return [env[v] for v in frontier]
 
     def rest(values, *args):
         """Outputs of ``fun`` from the frontier values (the non-affine part)."""
         env = start_env(None, jax.tree_util.tree_leaves(args))
         env.update(zip(frontier, values))
-        evaluate(env, second_part)
+        _evaluate(env, second_part, scaled)
         out = jaxpr.outvars[0]
         return out.val if isinstance(out, jex_core.Literal) else env[out]
 
