@@ -162,94 +162,81 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     x0 : array (n,)
         Initial state.
     params : pytree of arrays
-        Traced parameters of the residual (changing values never recompiles).  The run places
-        them on the device once (and again each time ``after_step`` changes them): the
-        residual and the hooks receive them as jax arrays.
+        Traced parameters of the residual (changing values never recompiles), put on the device
+        once per change: the residual and the hooks receive jax arrays.
     t0, t1, dt : float
         Time span and step; the last step is shortened to end exactly at t1.  With a
         ``controller``, ``dt`` is the first step's size.
     solver : StepSolver
-        Nonlinear step solver: ``ANM``, ``Newton``, ``ModifiedNewton`` or a user's subclass of
-        :class:`~jaxanm.StepSolver`.
+        ``ANM``, ``Newton``, ``ModifiedNewton`` or a user's subclass of :class:`~jaxanm.StepSolver`.
     scale : float or array (n,)
         Characteristic magnitude of each unknown (series norms, Newton convergence test).
-    jacobian : {"auto", "dense", "sparse"}
-        Tangent by dense ``jacfwd`` or by coloured compressed ``jacfwd``; "auto" is sparse when
-        ``sparsity`` is given or n > 400.
-    sparsity : scipy sparse matrix, callable ``params -> pattern``, or None
-        Jacobian sparsity pattern; None detects it from dense probes (small problems).
-    save_every, save_at :
+    jacobian, sparsity :
+        Tangent by dense or coloured compressed ``jacfwd`` (``"dense"``, ``"sparse"``, or ``"auto"``:
+        sparse when ``sparsity`` is given or n > 400); ``sparsity``: a scipy sparse pattern, a
+        callable ``params -> pattern``, or None (detected from dense probes, small problems).
+    save_every, save_at, save_params :
         Save every k-th step, or at the steps nearest to the given times (t0 and t1 always;
-        with a ``controller`` the steps end exactly at the ``save_at`` times).
-    save_params : bool
-        Also keep ``params`` at the saved times (e.g. moving point clouds).
+        with a ``controller`` the steps end exactly at the ``save_at`` times); ``save_params``
+        also keeps ``params`` at the saved times (e.g. moving point clouds).
     after_step : callable ``(t_new, x_new, params) -> params | Remap(params, x)``
-        Host hook after every accepted step (Lagrangian motion, stencil rebuild).  Return
-        :class:`Remap` to also replace the state (e.g. refitted to rebuilt stencils).  The
-        arrays it returns must keep their shapes and dtypes.
+        Host hook after every accepted step (Lagrangian motion, stencil rebuild); :class:`Remap`
+        also replaces the state.  The arrays it returns must keep their shapes and dtypes.
     observe : callable ``(t, x, params) -> dict of arrays``
-        Quantities recorded at t0 and after every accepted step (probe histories); returned
-        in ``Solution.observed`` as ``{"t": (M,), key: (M, ...)}`` and kept in checkpoints.
-    progress : bool
-        Show a tqdm progress bar with time, steps/s and factorisations.
-    callback : callable ``(t_new, x_new, stats)``
-        Called after every accepted step.
+        Quantities recorded at t0 and after every accepted step (probe histories), returned in
+        ``Solution.observed`` as ``{"t": (M,), key: (M, ...)}`` and kept in checkpoints.
+    progress, callback :
+        A tqdm progress bar (time, steps/s, factorisations); ``callback(t_new, x_new, stats)``
+        after every accepted step.
     max_dt_halvings : int
-        When a step fails, it is redone as two half steps, recursively up to this depth (with a
+        A failed step is redone as two half steps, recursively up to this depth (with a
         ``controller``: retried at a quarter of its size, at most this many times in a row).
-    checkpoint : path, optional
-        Checkpoint file.  Written atomically every ``checkpoint_every`` steps, at the end, and
-        when the run is interrupted (KeyboardInterrupt/SIGINT, SIGTERM) or fails.
-    resume : bool
-        Continue from ``checkpoint`` if it exists; the continued run is bit-identical to an
-        uninterrupted one (K* is re-factorised from its stored matrix, counted in
-        ``stats.resumes``, not in ``factorizations``).
+    checkpoint, checkpoint_every, resume :
+        Checkpoint file, written atomically every ``checkpoint_every`` steps, at the end, and
+        when the run is interrupted (SIGINT, SIGTERM) or fails; ``resume`` continues from it,
+        bit-identical to an uninterrupted run (K* re-factorised from its stored matrix, counted
+        in ``stats.resumes``, not in ``factorizations``).
     host_state : ``(get, set)`` pair of callables, optional
-        State kept on the host outside ``x`` and ``params`` (e.g. the recorder of the FSW
-        layer: probe histories, saved fields, moving points).  ``get()`` returns a picklable
-        snapshot, stored in every checkpoint; on resume ``set(snapshot)`` restores it before
-        the first step.  ``get`` is only called between steps, never while a step is being
-        recorded (SIGINT/SIGTERM are deferred then), so the snapshot always belongs to the
-        checkpoint's step.
+        State kept on the host outside ``x`` and ``params`` (the FSW recorder): ``get()``, a
+        picklable snapshot taken only between steps, goes into every checkpoint; on resume
+        ``set(snapshot)`` restores it before the first step.
     controller : StepController, optional
-        Adaptive step sizes from a local error estimate (:mod:`jaxanm.step_control`); the
-        accepted sizes are in ``stats.step_sizes``, the steps refused by the error test in
-        ``stats.rejected_steps``.  None: fixed steps of ``dt``.
+        Adaptive step sizes from a local error estimate (:mod:`jaxanm.step_control`; accepted
+        sizes in ``stats.step_sizes``, refused steps in ``stats.rejected_steps``).  None: fixed.
     sensitivity : SensitivityMethod, optional
-        Derivatives carried along the steps (:class:`SensitivityMethod`; :func:`jaxanm.sensitivities`
-        passes a :class:`~jaxanm.sensitivity.ForwardSensitivity`): every solved (sub-)step goes
-        to it, which may polish the state the run goes on from, and every accepted step.  Not
-        with ``after_step``, a ``controller`` or checkpoints.
+        Derivatives carried along the steps (:func:`jaxanm.sensitivities` passes a
+        :class:`~jaxanm.sensitivity.ForwardSensitivity`): it gets every solved (sub-)step, may
+        polish the state the run goes on from, and every accepted step.  Not with
+        ``after_step``, a ``controller`` or checkpoints.
 
-    Returns
-    -------
-    Solution with ``ts``, ``xs``, ``stats`` (and ``params``, ``observed`` if requested).
-
-    Raises
-    ------
-    InputError
-        Invalid arguments, before any computation.
-    StepFailure, NonFiniteError
-        A step failed even after ``max_dt_halvings`` halvings, or an accepted state or its
-        residual is not finite; the message gives step, time, a_max and residual norm.  The
-        exception (and a ``KeyboardInterrupt``) carries the run's statistics so far as ``stats``.
+    Returns a :class:`Solution` (``ts``, ``xs``, ``stats``; ``params``, ``observed`` if asked).
+    Raises :class:`InputError` on invalid arguments, before any computation; :class:`StepFailure`
+    or :class:`NonFiniteError` when a step failed even after ``max_dt_halvings`` halvings or an
+    accepted state or its residual is not finite (message: step, time, a_max, residual norm);
+    they (and a ``KeyboardInterrupt``) carry the run's statistics so far as ``stats``.
     """
     x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at, controller)
     _check_run_options(checkpoint, checkpoint_every, resume, host_state, after_step, controller, sensitivity)
     params = on_device(params_float64(params))
     start = time.perf_counter()
+    jacobian, sparsity = _tangent_pattern(residual, x0, t0, dt, params, jacobian, sparsity)
+    options = _LoopOptions(t0=t0, t1=t1, dt=dt, save_every=save_every, save_at=save_at, save_params=save_params,
+                           after_step=after_step, observe=observe, progress=progress, callback=callback,
+                           max_dt_halvings=max_dt_halvings, checkpoint=checkpoint, checkpoint_every=checkpoint_every,
+                           resume=resume, host_state=host_state, controller=controller, sensitivity=sensitivity)
+    loop = _TimeLoop(residual, solver, x0, params, scale, jacobian, sparsity, options, start)
+    return loop.run()
+
+
+def _tangent_pattern(residual, x0, t0, dt, params, jacobian: str, sparsity):
+    """The tangent's kind (``"dense"`` or ``"sparse"``) and its sparsity pattern: the one given,
+    or for a sparse tangent without one, detected from dense probes at the first step."""
     jacobian = jacobian_kind(jacobian, sparsity, x0.size)
     if jacobian == "sparse" and sparsity is None:
         sparsity = detect_sparsity(residual, x0, x0, t0 + dt, dt, params)
     if sparsity is not None and not (callable(sparsity) or scipy.sparse.issparse(sparsity)):
         raise InputError("sparsity must be a scipy sparse matrix or a callable params -> matrix")
-    options = _LoopOptions(t0=t0, t1=t1, dt=dt, save_every=save_every, save_at=save_at, save_params=save_params,
-                           after_step=after_step, observe=observe, progress=progress, callback=callback,
-                           max_dt_halvings=max_dt_halvings, checkpoint=checkpoint,
-                           checkpoint_every=checkpoint_every, resume=resume, host_state=host_state,
-                           controller=controller, sensitivity=sensitivity)
-    loop = _TimeLoop(residual, solver, x0, params, scale, jacobian, sparsity, options, start)
-    return loop.run()
+    return jacobian, sparsity
 
 
 def _check_run_options(checkpoint, checkpoint_every, resume, host_state, after_step, controller, sensitivity):
