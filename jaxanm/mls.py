@@ -182,6 +182,34 @@ def _times_upper(V, X):
     return [sum(V[i] * X[i][j][:, None] for i in range(j + 1)) for j in range(len(V))]
 
 
+def _cholesky_qr2(v, P):
+    """The QR factorisation ``V S = Q R`` of the equilibrated ``V = sqrt(W) P`` (columns
+    ``v * P[i]``, (n, m) each) for n stencils at once, by CholeskyQR2 (Fukaya, Nakatsukasa,
+    Yanagisawa, Yamamoto, 2014; error analysis: Yamamoto et al., ETNA 44, 2015):
+    ``Q1 = V S R1^{-1}`` with ``R1^T R1 = S V^T V S``, then the same once more on ``Q1``:
+    ``Q = Q1 R2^{-1}``, ``R = R2 R1``.  For ``cond(V) < eps^(-1/2)`` (here
+    ``cond(V) = rcond^(-1/2) <= 1e5``, by :data:`RCOND_MIN`) Q is orthonormal to a few eps and
+    ``V S - Q R`` is a few eps of ``|V S|``, as with Householder reflections.
+
+    Returns the equilibration ``s = 1 / sqrt(diag A)`` (list of (n,)), the columns of ``Q1``,
+    ``R2^{-1}`` and ``R^{-1}`` (upper triangles, (n,) entries), and a lower bound (n,) of the
+    reciprocal condition number of the equilibrated ``A = P^T W P``.
+    """
+    A0 = _gram([v * p for p in P])  # P^T W P
+    s = [1.0 / jnp.sqrt(A0[i][i]) for i in range(N_BASIS)]
+    G1 = [[A0[i][j] * s[i] * s[j] if j >= i else None for j in range(N_BASIS)] for i in range(N_BASIS)]
+    R1inv = _cholesky_inverse(G1)
+    # rcond(G1) >= det / trace^6 (see _condition_screen), det G1 = prod R1_jj^2
+    det = 1.0 / functools.reduce(jnp.multiply, [R1inv[j][j] for j in range(N_BASIS)]) ** 2
+    bound = det / sum(G1[j][j] for j in range(N_BASIS)) ** N_BASIS
+    Q1 = jax.lax.optimization_barrier(_times_upper([v * p * si[:, None] for p, si in zip(P, s)], R1inv))
+    R2inv = _cholesky_inverse(_gram(Q1))
+    # R^{-1} = R1^{-1} R2^{-1} (upper triangular); column j of R^{-T} is row j of R^{-1}
+    Rinv = [[sum(R1inv[i][k] * R2inv[k][j] for k in range(i, j + 1)) if j >= i else None
+             for j in range(N_BASIS)] for i in range(N_BASIS)]
+    return s, Q1, R2inv, Rinv, bound
+
+
 # Derivatives of the basis at xi = 0, in the order value, x, y, xx, xy, yy: p(0) = e_0,
 # p_,x = e_1, p_,y = e_2, p_,xx = 2 e_3, p_,xy = e_4, p_,yy = 2 e_5.
 _BASIS_DERIVATIVES = (1.0, 1.0, 1.0, 2.0, 1.0, 2.0)
@@ -210,18 +238,12 @@ def _shape_functions(x, y, mask, c, q, derivatives=True):
     One factorisation and 6 right-hand sides ``S p_,..`` (``R^{-T} S diag(p_,..)`` is a column
     scaling of ``R^{-T}``); the only inverse is that of R, whose condition number is the square
     root of A's.  (Solving with A itself, the normal equations, squares it: the derivatives
-    then lose up to ``log10(1 / rcond)`` digits.)
-
-    The QR factorisation is CholeskyQR2 (Fukaya, Nakatsukasa, Yanagisawa, Yamamoto, 2014; error
-    analysis: Yamamoto et al., ETNA 44, 2015): ``Q1 = V R1^{-1}`` with ``R1^T R1 = V^T V``, then
-    the same once more on ``Q1``: ``Q = Q1 R2^{-1}``, ``R = R2 R1``.  For
-    ``cond(V) < eps^(-1/2)`` (here ``cond(V) = rcond^(-1/2) <= 1e5``, by :data:`RCOND_MIN`) Q is
-    orthonormal to a few eps and ``V - Q R`` is a few eps of ``|V|``, as with Householder
-    reflections.  Everything is written out on the 6 basis indices -- elementwise products and
-    sums over the stencil of (n, m) arrays, and (n,) arrays for the 6 x 6 matrices -- not as
-    batched matrix products (XLA runs those as one tiny product per stencil, several times
-    slower) nor ``jnp.linalg`` (batched LAPACK calls inside this kernel intermittently
-    deadlocked the XLA CPU runtime, jaxlib 0.10.2, under load).
+    then lose up to ``log10(1 / rcond)`` digits.)  The QR factorisation is
+    :func:`_cholesky_qr2`.  Everything is written out on the 6 basis indices -- elementwise
+    products and sums over the stencil of (n, m) arrays, and (n,) arrays for the 6 x 6
+    matrices -- not as batched matrix products (XLA runs those as one tiny product per
+    stencil, several times slower) nor ``jnp.linalg`` (batched LAPACK calls inside this kernel
+    intermittently deadlocked the XLA CPU runtime, jaxlib 0.10.2, under load).
     """
     # optimization_barrier: arrays used by many later sums are computed once; without it XLA
     # fuses their producers (exp, the products with R^{-1}) into every consumer and recomputes
@@ -230,18 +252,7 @@ def _shape_functions(x, y, mask, c, q, derivatives=True):
     v = jnp.sqrt(w)
     v, gx, gy, gxx, gxy, gyy = jax.lax.optimization_barrier((v, gx, gy, gxx, gxy, gyy))
     P = [jnp.ones_like(x), x, y, x * x, x * y, y * y]
-    A0 = _gram([v * p for p in P])  # P^T W P
-    s = [1.0 / jnp.sqrt(A0[i][i]) for i in range(N_BASIS)]
-    G1 = [[A0[i][j] * s[i] * s[j] if j >= i else None for j in range(N_BASIS)] for i in range(N_BASIS)]
-    R1inv = _cholesky_inverse(G1)
-    # rcond(G1) >= det / trace^6 (see _condition_screen), det G1 = prod R1_jj^2
-    det = 1.0 / functools.reduce(jnp.multiply, [R1inv[j][j] for j in range(N_BASIS)]) ** 2
-    bound = det / sum(G1[j][j] for j in range(N_BASIS)) ** N_BASIS
-    Q1 = jax.lax.optimization_barrier(_times_upper([v * p * si[:, None] for p, si in zip(P, s)], R1inv))
-    R2inv = _cholesky_inverse(_gram(Q1))
-    # R^{-1} = R1^{-1} R2^{-1} (upper triangular); column j of R^{-T} is row j of R^{-1}
-    Rinv = [[sum(R1inv[i][k] * R2inv[k][j] for k in range(i, j + 1)) if j >= i else None
-             for j in range(N_BASIS)] for i in range(N_BASIS)]
+    s, Q1, R2inv, Rinv, bound = _cholesky_qr2(v, P)
 
     def Qz(j, f=None):
         """``Q (z_j + Q^T f)`` (n, m) for ``z_j = R^{-T} S p_,j`` and ``f`` (n, m).
