@@ -202,11 +202,87 @@ def _consistent_start(residual, x0, params, t0, ic_dt, ic_tol, scale, pattern):
     from .integrate import integrate
     from .solvers import Newton
 
-
     sol = integrate(residual, x0, params, t0=t0, t1=t0 + 2 * ic_dt, dt=ic_dt, solver=Newton(tol=ic_tol),
                     scale=scale, jacobian="sparse", sparsity=pattern, save_every=1)
     x1, x2 = sol.xs[-2], sol.xs[-1]
     return float(sol.ts[-1]), x2, (x2 - x1) / ic_dt, sol.stats
+
+
+def _check_start_residual(F, t0, x0, yp0, h0, params, consistency_tol):
+    """Check the DAE residual at the start (:class:`InputError`): one finite row per unknown,
+    and a given ``yp0`` consistent (``max |F(t0, x0, yp0)| <= consistency_tol``)."""
+    n = x0.size
+    f0 = np.asarray(F(t0, x0, np.zeros(n) if yp0 is None else yp0, h0, params))
+    if f0.shape != (n,):
+        raise InputError(f"residual returned shape {f0.shape} for {n} unknowns; it must return one row per unknown")
+    if not np.all(np.isfinite(f0)):
+        raise InputError(f"residual is not finite at x0 ({int(np.sum(~np.isfinite(f0)))} rows); check x0 and params")
+    if yp0 is not None and np.max(np.abs(f0)) > consistency_tol:
+        raise InputError(f"yp0 is not consistent: max |F(t0, x0, yp0)| = {np.max(np.abs(f0)):.3g} > consistency_tol = "
+                         f"{consistency_tol:g}; give a consistent yp0, or none (then a consistent start is computed)")
+
+
+def _newton_pattern(g, x0, sparsity, t0, h0, params) -> scipy.sparse.csc_matrix:
+    """The CSC pattern of IDA's Newton matrix: the given ``sparsity`` (a pattern or a callable
+    of ``params``), or detected from dense probes of ``g`` (:func:`_newton_matrix_residual`)."""
+    n = x0.size
+    if sparsity is None:
+        pattern = detect_sparsity(g, x0, (x0, jnp.zeros(n), 0.37 / h0), t0, h0, params)
+    else:
+        pattern = sparsity(params) if callable(sparsity) else sparsity
+    return _csc_pattern(pattern, n)
+
+
+def _ida(F, jac, h0, params, pattern, stats: IDAStats, **options):
+    """SUNDIALS IDA (sksundae, sparse direct solver) on the DAE residual ``F`` and the Newton
+    matrix ``jac``, whose calls are counted and timed in ``stats``; ``options`` go to IDA."""
+    import sksundae
+
+    def resfn(t, y, yp, res):
+        t1 = time.perf_counter()
+        res[:] = np.asarray(F(t, y, yp, h0, params))
+        stats.residual_evaluations += 1
+        stats.wall_time["residual"] += time.perf_counter() - t1
+
+    def jacfn(t, y, yp, res, cj, JJ):
+        t1 = time.perf_counter()
+        J = jac(y, (y, yp, cj), t, h0, params)
+        JJ[:] = J.data
+        stats.jacobian_evaluations += 1
+        stats.wall_time["jacobian"] += time.perf_counter() - t1
+
+    with warnings.catch_warnings():  # the wheel warns that its own sparse DQ Jacobian is unused: jacfn replaces it
+        warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
+        return sksundae.ida.IDA(resfn, jacfn=jacfn, linsolver="sparse", sparsity=pattern.astype(np.float64), **options)
+
+
+def _march(solver, t_start: float, t_out, max_steps: int, stats: IDAStats, wall0: float):
+    """IDA's internal steps up to each output time in turn (stopping exactly on it): the lists
+    of output times, states and derivatives.  An :class:`IDAFailure` when IDA fails, the state
+    goes non-finite or ``max_steps`` is spent."""
+    ts, xs, xps = [], [], []
+    t = t_start
+    for t_next in t_out:
+        if t_next <= t_start:
+            raise InputError(f"output time {t_next!r} is before IDA's start {t_start!r} (t0 + 2 ic_dt): give a smaller ic_dt")
+        while t < t_next:
+            if stats.steps >= max_steps:
+                stats.wall_s = time.perf_counter() - wall0
+                raise IDAFailure(f"more than max_steps = {max_steps} steps; raise max_steps or loosen rtol/atol",
+                                 status=-1, t=t, stats=stats)
+            r = solver.step(float(t_next), method="onestep", tstop=float(t_next))
+            if not r.success:
+                stats.wall_s = time.perf_counter() - wall0
+                raise IDAFailure(str(r.message), status=r.status, t=float(r.t), stats=stats)
+            stats.steps += 1
+            t = float(r.t)
+            if not np.all(np.isfinite(r.y)):
+                stats.wall_s = time.perf_counter() - wall0
+                raise IDAFailure("the state went non-finite", status=-99, t=t, stats=stats)
+        ts.append(t)
+        xs.append(np.array(r.y))
+        xps.append(np.array(r.yp))
+    return ts, xs, xps
 
 
 @entry_point
@@ -254,39 +330,18 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
     nthreads : int
         Threads of SuperLU_MT.
 
-    Returns
-    -------
-    IDASolution
-
-    Raises
-    ------
-    InputError
-        Bad input (before any long computation): the message names the input and the fix.
-    IDAFailure
-        IDA stopped (error test or Newton failures at the minimum step, too many steps, a
-        residual that went non-finite): its flag, message and time.
+    Returns an :class:`IDASolution`.  Raises :class:`InputError` on bad input (before any long
+    computation), the message naming the input and the fix; :class:`IDAFailure` when IDA
+    stopped (error test or Newton failures at the minimum step, too many steps, a residual
+    that went non-finite), with its flag, message and time.
     """
-    import sksundae
-
     wall0 = time.perf_counter()
     x0, t_out, atol_a, scale, h0, yp0, ic_dt = _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps)
-    n = x0.size
     params = jax.device_put(params_float64(params))
     F = dae_residual(residual)
-    f0 = np.asarray(F(t0, x0, np.zeros(n) if yp0 is None else yp0, h0, params))
-    if f0.shape != (n,):
-        raise InputError(f"residual returned shape {f0.shape} for {n} unknowns; it must return one row per unknown")
-    if not np.all(np.isfinite(f0)):
-        raise InputError(f"residual is not finite at x0 ({int(np.sum(~np.isfinite(f0)))} rows); check x0 and params")
-    if yp0 is not None and np.max(np.abs(f0)) > consistency_tol:
-        raise InputError(f"yp0 is not consistent: max |F(t0, x0, yp0)| = {np.max(np.abs(f0)):.3g} > consistency_tol = "
-                         f"{consistency_tol:g}; give a consistent yp0, or none (then a consistent start is computed)")
+    _check_start_residual(F, t0, x0, yp0, h0, params, consistency_tol)
     g = _newton_matrix_residual(residual)
-    if sparsity is None:
-        pattern = detect_sparsity(g, x0, (x0, jnp.zeros(n), 0.37 / h0), t0, h0, params)
-    else:
-        pattern = sparsity(params) if callable(sparsity) else sparsity
-    pattern = _csc_pattern(pattern, n)
+    pattern = _newton_pattern(g, x0, sparsity, t0, h0, params)
     jac = SparseJacobian(g, pattern)
     stats = IDAStats()
     if yp0 is None:
@@ -295,50 +350,12 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
     else:
         t_start, y0 = float(t0), x0
     stats.wall_time["start"] = time.perf_counter() - wall0
-
-    def resfn(t, y, yp, res):
-        t1 = time.perf_counter()
-        res[:] = np.asarray(F(t, y, yp, h0, params))
-        stats.residual_evaluations += 1
-        stats.wall_time["residual"] += time.perf_counter() - t1
-
-    def jacfn(t, y, yp, res, cj, JJ):
-        t1 = time.perf_counter()
-        J = jac(y, (y, yp, cj), t, h0, params)
-        JJ[:] = J.data
-        stats.jacobian_evaluations += 1
-        stats.wall_time["jacobian"] += time.perf_counter() - t1
-
-    with warnings.catch_warnings():  # the wheel warns that its own sparse DQ Jacobian is unused: jacfn replaces it
-        warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
-        solver = sksundae.ida.IDA(resfn, jacfn=jacfn, linsolver="sparse", sparsity=pattern.astype(np.float64),
-                                  nthreads=nthreads, rtol=float(rtol), atol=atol_a * scale, max_order=int(max_order),
-                                  first_step=float(first_step), max_step=float(max_step))
+    solver = _ida(F, jac, h0, params, pattern, stats, nthreads=nthreads, rtol=float(rtol), atol=atol_a * scale,
+                  max_order=int(max_order), first_step=float(first_step), max_step=float(max_step))
     r = solver.init_step(t_start, y0, yp0)
     if not r.success:
         raise IDAFailure(str(r.message), status=r.status, t=t_start, stats=stats)
-    ts, xs, xps = [], [], []
-    t = t_start
-    for t_next in t_out:
-        if t_next <= t_start:
-            raise InputError(f"output time {t_next!r} is before IDA's start {t_start!r} (t0 + 2 ic_dt): give a smaller ic_dt")
-        while t < t_next:
-            if stats.steps >= max_steps:
-                stats.wall_s = time.perf_counter() - wall0
-                raise IDAFailure(f"more than max_steps = {max_steps} steps; raise max_steps or loosen rtol/atol",
-                                 status=-1, t=t, stats=stats)
-            r = solver.step(float(t_next), method="onestep", tstop=float(t_next))
-            if not r.success:
-                stats.wall_s = time.perf_counter() - wall0
-                raise IDAFailure(str(r.message), status=r.status, t=float(r.t), stats=stats)
-            stats.steps += 1
-            t = float(r.t)
-            if not np.all(np.isfinite(r.y)):
-                stats.wall_s = time.perf_counter() - wall0
-                raise IDAFailure("the state went non-finite", status=-99, t=t, stats=stats)
-        ts.append(t)
-        xs.append(np.array(r.y))
-        xps.append(np.array(r.yp))
+    ts, xs, xps = _march(solver, t_start, t_out, max_steps, stats, wall0)
     stats.linear_solves = stats.residual_evaluations
     stats.wall_s = time.perf_counter() - wall0
     stats.wall_time["ida"] = max(stats.wall_s - sum(v for k, v in stats.wall_time.items() if k != "ida"), 0.0)
