@@ -274,59 +274,70 @@ def solve(scene: Scene, times, *, tool_cells: int = 40, plate_cells: int = 120, 
     return sol
 
 
-def _solve(scene: Scene, times, steps_at, dt: float, scheme: str, edges: np.ndarray) -> AxisymmetricSolution:
-    """One solve on ``edges`` with step ``dt``; output after ``steps_at`` steps."""
-    g, m, tl, th = scene.geometry, scene.material, scene.tool, scene.thermal
-    R1, R2, omega, T0 = g.R1, g.R2, tl.omega, th.T0
-    flow, heat = scene.has("viscous"), scene.has("conduction")
-    soft, source = scene.has("softening"), scene.has("dissipation")
-    rc, width = 0.5 * (edges[1:] + edges[:-1]), np.diff(edges)
-    in_plate = rc > R1
-    ip = np.flatnonzero(in_plate)
-    r_p, w_p = rc[ip], width[ip]
-    plate_edges = edges[edges >= R1 - 1e-15 * R1]
+class _Conduction:
+    """Radial conduction per radian on the cells of ``edges``: capacities ``rho_cp * vol``, the
+    matrix ``L`` of the face conductances (Robin through the outer half cell) and its
+    right-hand side ``b_out``, and the interface (R1) and outer-edge (R2) temperatures from the
+    two-point fluxes."""
 
-    # conduction operator (per radian): capacities, face conductances, Robin
-    k = np.where(in_plate, m.k, tl.k)
-    rho_cp = np.where(in_plate, m.rho * m.Cp, tl.rho * tl.Cp)
-    vol = 0.5 * (edges[1:] ** 2 - edges[:-1] ** 2)
-    g_face = edges[1:-1] / (0.5 * width[:-1] / k[:-1] + 0.5 * width[1:] / k[1:])
-    g_out = R2 / (0.5 * width[-1] / k[-1] + 1.0 / th.h) if (scene.has("robin") and th.h > 0) else 0.0
-    N = rc.size
-    lap_diag = np.zeros(N)
-    lap_diag[:-1] += g_face
-    lap_diag[1:] += g_face
-    lap_diag[-1] += g_out
-    L = scipy.sparse.diags([lap_diag, -g_face, -g_face], [0, 1, -1], format="csc")
-    b_out = np.zeros(N)
-    b_out[-1] = g_out * th.Ta
-    # interface face (R1) and outer-edge temperatures from the two-point fluxes
-    j_int = int(np.searchsorted(edges, R1 * (1 - 1e-12))) if edges[0] < R1 * (1 - 1e-12) else None
+    def __init__(self, scene: Scene, edges: np.ndarray, in_plate: np.ndarray):
+        m, tl, th = scene.material, scene.tool, scene.thermal
+        R1, R2 = scene.geometry.R1, scene.geometry.R2
+        width = np.diff(edges)
+        k = np.where(in_plate, m.k, tl.k)
+        self.rho_cp = np.where(in_plate, m.rho * m.Cp, tl.rho * tl.Cp)
+        self.vol = 0.5 * (edges[1:] ** 2 - edges[:-1] ** 2)
+        g_face = edges[1:-1] / (0.5 * width[:-1] / k[:-1] + 0.5 * width[1:] / k[1:])
+        g_out = R2 / (0.5 * width[-1] / k[-1] + 1.0 / th.h) if (scene.has("robin") and th.h > 0) else 0.0
+        N = width.size
+        lap_diag = np.zeros(N)
+        lap_diag[:-1] += g_face
+        lap_diag[1:] += g_face
+        lap_diag[-1] += g_out
+        self.L = scipy.sparse.diags([lap_diag, -g_face, -g_face], [0, 1, -1], format="csc")
+        self.b_out = np.zeros(N)
+        self.b_out[-1] = g_out * th.Ta
+        self._k, self._width, self._g_out, self._h, self._Ta = k, width, g_out, th.h, th.Ta
+        self._j_int = int(np.searchsorted(edges, R1 * (1 - 1e-12))) if edges[0] < R1 * (1 - 1e-12) else None
 
-    def boundary_values(T):
+    def boundary_values(self, T):
+        """``(T(R1), T(R2))`` from the cell temperatures ``T``."""
+        k, width, j_int = self._k, self._width, self._j_int
         if j_int is None:  # no tool cells: insulated plate edge, T(R1) = first cell (zero gradient)
             T_R1 = T[0]
         else:
             gl, gr = k[j_int - 1] / (0.5 * width[j_int - 1]), k[j_int] / (0.5 * width[j_int])
             T_R1 = (gl * T[j_int - 1] + gr * T[j_int]) / (gl + gr)
-        if g_out > 0:
+        if self._g_out > 0:
             gi = k[-1] / (0.5 * width[-1])
-            T_R2 = (gi * T[-1] + th.h * th.Ta) / (gi + th.h)
+            T_R2 = (gi * T[-1] + self._h * self._Ta) / (gi + self._h)
         else:
             T_R2 = T[-1]
         return T_R1, T_R2
 
-    state = {"C": None, "s": None}
 
-    def flow_state(T):
+class _QuasiStaticFlow:
+    """The quasi-static Couette flow of the plate at given temperatures: the torque constant
+    ``C`` by Newton on ``log C`` and the shear rates ``|s|`` at the plate cell centres ``r_p``
+    (widths ``w_p``), each solve started from the last one's."""
+
+    def __init__(self, scene: Scene, r_p: np.ndarray, w_p: np.ndarray, ip: np.ndarray):
+        self.m, self.omega, self.T0 = scene.material, scene.tool.omega, scene.thermal.T0
+        self.R1, self.R2 = scene.geometry.R1, scene.geometry.R2
+        self.soft = scene.has("softening")
+        self.r_p, self.w_p, self.ip = r_p, w_p, ip
+        self.C = self.s = None
+
+    def __call__(self, T):
         """(|C|, |s| at plate cell centres) of the quasi-static flow at temperatures T."""
-        coef = m.K / 3.0 * (T[ip] if soft else np.full(ip.size, T0)) ** m.A
-        logC = math.log(state["C"]) if state["C"] is not None else None
+        m, omega, R1, R2, r_p, w_p, ip = self.m, self.omega, self.R1, self.R2, self.r_p, self.w_p, self.ip
+        coef = m.K / 3.0 * (T[ip] if self.soft else np.full(ip.size, self.T0)) ** m.A
+        logC = math.log(self.C) if self.C is not None else None
         if logC is None:  # start: the isothermal power law, C from the unregularised closed form
             a = 2.0 / m.n
             s1 = 2.0 / m.n * omega * R1 ** -a / (R1 ** -a - R2 ** -a)  # |s| at R1 (n law)
             logC = math.log(coef[0] * s1 ** m.n * 3 ** (0.5 * (1 - m.n)) * R1 ** 2)
-        s = state["s"]
+        s = self.s
         for _ in range(100):
             s, dF = couette_shear(math.exp(logC), r_p, coef, m.n, m.eps0, guess=s)
             G = np.sum(s / r_p * w_p)
@@ -338,69 +349,102 @@ def _solve(scene: Scene, times, steps_at, dt: float, scheme: str, edges: np.ndar
         else:  # pragma: no cover - Newton on a convex increasing function of log C
             raise RuntimeError("axisymmetric: the torque constant did not converge")
         s, _ = couette_shear(math.exp(logC), r_p, coef, m.n, m.eps0, guess=s)
-        state["C"], state["s"] = math.exp(logC), s
-        return state["C"], s
+        self.C, self.s = math.exp(logC), s
+        return self.C, s
 
-    def sources(T):
-        q = np.zeros(N)
-        if flow and source:
-            C, s = flow_state(T)
-            q[ip] = m.beta * C * s / r_p * w_p  # beta tau |s| r dr, tau = C / r^2
-        return q
 
-    T = np.full(N, T0)
-    T_prev = None
-    out_T, out_R1, out_R2, out_M, out_v, out_E = [], [], [], [], [], []
+class _Record:
+    """The solution at the output steps: cell temperatures, T(R1), T(R2), torque constant,
+    velocities at the plate edges and stored heat."""
 
-    def record(T):
-        T_R1, T_R2 = boundary_values(T)
-        out_T.append(T.copy())
-        out_R1.append(T_R1)
-        out_R2.append(T_R2)
-        if flow:
-            C, s = flow_state(T)
-            ratio = omega - np.concatenate([[0.0], np.cumsum(s / r_p * w_p)])  # v / r at the plate edges
-            out_M.append(2 * math.pi * C)
-            out_v.append(ratio * plate_edges)
+    def __init__(self, cond: _Conduction, flow: _QuasiStaticFlow | None, plate_edges: np.ndarray, T0: float):
+        self.cond, self.flow, self.plate_edges, self.T0 = cond, flow, plate_edges, T0
+        self.T, self.R1, self.R2, self.M, self.v, self.E = [], [], [], [], [], []
+
+    def __call__(self, T):
+        """Record the state ``T`` of an output step."""
+        T_R1, T_R2 = self.cond.boundary_values(T)
+        self.T.append(T.copy())
+        self.R1.append(T_R1)
+        self.R2.append(T_R2)
+        if self.flow is not None:
+            f = self.flow
+            C, s = f(T)
+            ratio = f.omega - np.concatenate([[0.0], np.cumsum(s / f.r_p * f.w_p)])  # v / r at the plate edges
+            self.M.append(2 * math.pi * C)
+            self.v.append(ratio * self.plate_edges)
         else:
-            out_M.append(0.0)
-            out_v.append(np.zeros(plate_edges.size))
-        out_E.append(2 * math.pi * float(np.sum(rho_cp * vol * (T - T0))))
+            self.M.append(0.0)
+            self.v.append(np.zeros(self.plate_edges.size))
+        self.E.append(2 * math.pi * float(np.sum(self.cond.rho_cp * self.cond.vol * (T - self.T0))))
 
-    n_total = int(steps_at[-1]) if len(steps_at) else 0
-    save = {int(n): [] for n in steps_at}
-    if 0 in save:
-        record(T)
+    def solution(self, scene: Scene, times, steps_at, edges, rc) -> AxisymmetricSolution:
+        """The recorded outputs at each of ``times`` (repeated output steps share a record)."""
+        g, omega = scene.geometry, scene.tool.omega
+        count = [list(steps_at).count(n) for n in sorted({int(n) for n in steps_at})]
+        idx = np.repeat(np.arange(len(self.T)), count)
+        C = np.asarray(self.M)[idx]
+        return AxisymmetricSolution(times=times, edges=edges, r=rc, T=np.asarray(self.T)[idx],
+                                    T_R1=np.asarray(self.R1)[idx], T_R2=np.asarray(self.R2)[idx], T0=self.T0,
+                                    R1=g.R1, R2=g.R2, torque=C, power=omega * C, plate_edges=self.plate_edges,
+                                    v_faces=np.asarray(self.v)[idx], stored=np.asarray(self.E)[idx])
+
+
+def _steps(cond: _Conduction, sources, T, n_total: int, dt: float, scheme: str, heat: bool, tol: float):
+    """Yield ``(n, T)`` after each of ``n_total`` steps of the heat equation from ``T``: BDF2
+    after a first implicit-Euler step (or implicit Euler throughout), the source converged by
+    fixed point, one factorisation per step coefficient; without ``heat`` T stays as it is."""
     lu = {}
 
     def step_matrix(a0: float):
         if a0 not in lu:
-            lu[a0] = scipy.sparse.linalg.splu((scipy.sparse.diags(a0 * rho_cp * vol / dt) + L).tocsc())
+            lu[a0] = scipy.sparse.linalg.splu((scipy.sparse.diags(a0 * cond.rho_cp * cond.vol / dt) + cond.L).tocsc())
         return lu[a0]
 
-    tol = _rise_tolerance() * T0
+    T_prev = None
     for n in range(1, n_total + 1):
         if not heat:
             pass
         elif scheme == "euler" or T_prev is None:
-            rhs0 = rho_cp * vol / dt * T + b_out
+            rhs0 = cond.rho_cp * cond.vol / dt * T + cond.b_out
             T_new = _fixed_point(step_matrix(1.0), rhs0, sources, T, tol)
             T_prev, T = T, T_new
         else:
-            rhs0 = rho_cp * vol / dt * (2.0 * T - 0.5 * T_prev) + b_out
+            rhs0 = cond.rho_cp * cond.vol / dt * (2.0 * T - 0.5 * T_prev) + cond.b_out
             guess = 2.0 * T - T_prev
             T_new = _fixed_point(step_matrix(1.5), rhs0, sources, guess, tol)
             T_prev, T = T, T_new
+        yield n, T
+
+
+def _solve(scene: Scene, times, steps_at, dt: float, scheme: str, edges: np.ndarray) -> AxisymmetricSolution:
+    """One solve on ``edges`` with step ``dt``; output after ``steps_at`` steps."""
+    R1, T0 = scene.geometry.R1, scene.thermal.T0
+    rc, width = 0.5 * (edges[1:] + edges[:-1]), np.diff(edges)
+    in_plate = rc > R1
+    ip = np.flatnonzero(in_plate)
+    plate_edges = edges[edges >= R1 - 1e-15 * R1]
+    cond = _Conduction(scene, edges, in_plate)
+    flow = _QuasiStaticFlow(scene, rc[ip], width[ip], ip) if scene.has("viscous") else None
+    beta = scene.material.beta
+
+    def sources(T):
+        q = np.zeros(rc.size)
+        if flow is not None and scene.has("dissipation"):
+            C, s = flow(T)
+            q[ip] = beta * C * s / flow.r_p * flow.w_p  # beta tau |s| r dr, tau = C / r^2
+        return q
+
+    record = _Record(cond, flow, plate_edges, T0)
+    save = {int(n) for n in steps_at}
+    T = np.full(rc.size, T0)
+    if 0 in save:
+        record(T)
+    n_total = int(steps_at[-1]) if len(steps_at) else 0
+    for n, T in _steps(cond, sources, T, n_total, dt, scheme, scene.has("conduction"), _rise_tolerance() * T0):
         if n in save:
             record(T)
-    count = [list(steps_at).count(n) for n in sorted(save)]
-    # repeated output times (the same step requested twice) share a record
-    idx = np.repeat(np.arange(len(out_T)), count)
-    C = np.asarray(out_M)[idx]
-    return AxisymmetricSolution(times=times, edges=edges, r=rc, T=np.asarray(out_T)[idx],
-                                T_R1=np.asarray(out_R1)[idx], T_R2=np.asarray(out_R2)[idx], T0=T0, R1=R1, R2=R2,
-                                torque=C, power=omega * C, plate_edges=plate_edges,
-                                v_faces=np.asarray(out_v)[idx], stored=np.asarray(out_E)[idx])
+    return record.solution(scene, times, steps_at, edges, rc)
 
 
 def _fixed_point(lu, rhs0, sources, guess, tol: float, max_iter: int = 100):
