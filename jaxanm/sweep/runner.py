@@ -97,15 +97,7 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
     from jaxanm import compile_cache as cache
 
     start = time.perf_counter()
-    if not isinstance(grid, Grid):
-        grid = read_grid(grid)
-    if scheduler is None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise InputError(f"workers must be an integer >= 1, got {workers!r}")
-    if reference is not None:
-        try:
-            load_run(reference)
-        except FileNotFoundError as exc:
-            raise InputError(f"reference {reference}: {exc}") from exc
+    grid = _checked_inputs(grid, scheduler, workers, reference)
     out_dir = Path(out_dir) if out_dir is not None else Path("results") / f"sweep-{grid.name}"
     out_dir.mkdir(parents=True, exist_ok=True)
     use_cache = cache.requested() if compile_cache is None else compile_cache
@@ -118,29 +110,69 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
             rows[spec["id"]] = {**row, "reused": True}
     reused = len(rows)
     table = out_dir / TABLE_NAME
-
-    def ordered():
-        return [{**rows[s["id"]], "dir": f"{RUNS_DIR}/{s['id']}"} for s in specs if s["id"] in rows]
-
-    write_table(table, ordered(), grid.keys)
+    write_table(table, _ordered(rows, specs), grid.keys)
     todo = [s for s in specs[len(grid.tasks):] + specs[:len(grid.tasks)] if s["id"] not in rows]  # longest first
     if todo:
-        from tqdm import tqdm
+        _run_tasks(todo, rows, specs, table, grid, scheduler, workers, progress, reused)
+    result = _ordered(rows, specs)
+    notes, plot = [], None
+    ref_dir, label, estimate = _reference(reference, grid, rows, out_dir, notes)
+    if ref_dir is not None:
+        result, plot = _errors_and_plot(result, ref_dir, label, estimate, grid, rows, out_dir, table, notes)
+    if plot is None:  # a plot left by an earlier sweep in this directory would describe other rows
+        (out_dir / PLOT_NAME).unlink(missing_ok=True)
+    return SweepResult(rows=result, table=table, plot=plot, reference=ref_dir,
+                       failed=[r["task"] for r in result if r["status"] != "ok"], reused=reused, notes=notes,
+                       wall_s=time.perf_counter() - start,
+                       reference_error=None if estimate is None else {k: v for k, v in estimate.items()
+                                                                      if k != "compare_note"})
 
-        bar = tqdm(total=len(specs), initial=reused, desc=f"sweep {grid.name}", unit="task",
-                   dynamic_ncols=True, disable=not progress)
+
+def _checked_inputs(grid, scheduler: str | None, workers, reference) -> Grid:
+    """The grid (read from its file if a path), after checking ``workers`` and that
+    ``reference`` holds a run (:class:`InputError`)."""
+    if not isinstance(grid, Grid):
+        grid = read_grid(grid)
+    if scheduler is None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise InputError(f"workers must be an integer >= 1, got {workers!r}")
+    if reference is not None:
         try:
-            for spec, row in _run_on_dask(todo, scheduler, workers):
-                rows[spec["id"]] = {**row, "reused": False}
-                write_table(table, ordered(), grid.keys)
-                failed = sum(r["status"] != "ok" for r in rows.values())
-                bar.set_postfix_str(f"{spec['id']} {row['status']}" + (f", {failed} failed" if failed else ""),
-                                    refresh=False)
-                bar.update(1)
-        finally:
-            bar.close()
-    result = ordered()
-    notes, plot, ref_dir, estimate = [], None, None, None
+            load_run(reference)
+        except FileNotFoundError as exc:
+            raise InputError(f"reference {reference}: {exc}") from exc
+    return grid
+
+
+def _ordered(rows: dict, specs: list) -> list:
+    """The rows of the tasks run so far, in the order of ``specs``, each with its directory."""
+    return [{**rows[s["id"]], "dir": f"{RUNS_DIR}/{s['id']}"} for s in specs if s["id"] in rows]
+
+
+def _run_tasks(todo: list, rows: dict, specs: list, table: Path, grid: Grid, scheduler, workers: int,
+               progress: bool, reused: int) -> None:
+    """Run the tasks ``todo`` on Dask, adding each row to ``rows`` and rewriting the table as
+    each finishes, under a tqdm bar over all ``specs``."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(specs), initial=reused, desc=f"sweep {grid.name}", unit="task",
+               dynamic_ncols=True, disable=not progress)
+    try:
+        for spec, row in _run_on_dask(todo, scheduler, workers):
+            rows[spec["id"]] = {**row, "reused": False}
+            write_table(table, _ordered(rows, specs), grid.keys)
+            failed = sum(r["status"] != "ok" for r in rows.values())
+            bar.set_postfix_str(f"{spec['id']} {row['status']}" + (f", {failed} failed" if failed else ""),
+                                refresh=False)
+            bar.update(1)
+    finally:
+        bar.close()
+
+
+def _reference(reference, grid: Grid, rows: dict, out_dir: Path, notes: list):
+    """The run the errors are measured against: ``(directory, label, Richardson estimate)``;
+    the given ``reference``, else the grid's reference task (None when it failed, with a note)
+    or its Richardson reference (estimate None when there is none)."""
+    ref_dir, label, estimate = None, None, None
     if reference is not None:
         ref_dir, label = Path(reference), str(reference)
     elif grid.reference is not None:
@@ -152,22 +184,21 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
         ref_dir, estimate = _richardson(grid, rows, out_dir, notes)
         label = (f"Richardson reference from dt = {grid.richardson.dt:g}, /2, /4 (estimated error "
                  f"{estimate['rel_err']:.1e})" if estimate else "")
-    if ref_dir is not None:
-        result = add_errors(result, ref_dir, out_dir)
-        plot = plot_pareto(result, out_dir / PLOT_NAME,
-                           f"sweep {grid.name} ({grid.base.name}): errors against {label}")
-        if estimate is not None:
-            result.append(_estimate_row(grid, rows, estimate))
-        write_table(table, result, grid.keys, errors=True)
-        if plot is None:
-            notes.append("no task has a positive error against the reference: no Pareto plot")
-    if plot is None:  # a plot left by an earlier sweep in this directory would describe other rows
-        (out_dir / PLOT_NAME).unlink(missing_ok=True)
-    return SweepResult(rows=result, table=table, plot=plot, reference=ref_dir,
-                       failed=[r["task"] for r in result if r["status"] != "ok"], reused=reused, notes=notes,
-                       wall_s=time.perf_counter() - start,
-                       reference_error=None if estimate is None else {k: v for k, v in estimate.items()
-                                                                      if k != "compare_note"})
+    return ref_dir, label, estimate
+
+
+def _errors_and_plot(result: list, ref_dir: Path, label: str, estimate, grid: Grid, rows: dict, out_dir: Path,
+                     table: Path, notes: list):
+    """The rows with their errors against ``ref_dir`` (and a Richardson estimate's row), the
+    table rewritten with them, and the Pareto plot (None when no error is positive, with a note)."""
+    result = add_errors(result, ref_dir, out_dir)
+    plot = plot_pareto(result, out_dir / PLOT_NAME, f"sweep {grid.name} ({grid.base.name}): errors against {label}")
+    if estimate is not None:
+        result.append(_estimate_row(grid, rows, estimate))
+    write_table(table, result, grid.keys, errors=True)
+    if plot is None:
+        notes.append("no task has a positive error against the reference: no Pareto plot")
+    return result, plot
 
 
 def _richardson(grid: Grid, rows: dict, out_dir: Path, notes: list):
