@@ -317,6 +317,44 @@ class FitResult:
     converged: bool
 
 
+def _check_fit_inputs(scenes, data, start: dict, sigma: dict):
+    """Check :func:`fit`'s experiments, measurements, start and noise levels
+    (:class:`InputError`); return the scenes and data as lists and the start as theta."""
+    scenes, data = list(scenes), list(data)
+    if len(scenes) != len(data) or not scenes:
+        raise InputError(f"give one data set per scene: {len(scenes)} scenes, {len(data)} data sets")
+    if not (isinstance(sigma, dict) and sigma and all(k in ("u", "v", "T") for k in sigma)
+            and all(float(v) > 0 for v in sigma.values())):
+        raise InputError(f"sigma must map some of 'u', 'v', 'T' to positive noise levels, got {sigma!r}")
+    theta = _check_theta(start)
+    for s in scenes:
+        _check_scene(s)
+    return scenes, data, theta
+
+
+def _gauss_newton_terms(scenes, data, theta: dict, sigma: dict, solver):
+    """Simulate every experiment at ``theta``: the loss ``0.5 r^T r``, its gradient ``J^T r``
+    and the Gauss-Newton matrix ``J^T J`` of the weighted residuals of all of them."""
+    rs, js = [], []
+    for s, d in zip(scenes, data):
+        run = simulate(s, theta, solver=solver)
+        r, J = weighted_residuals(run.observed, d, sigma, run.jacobian)
+        rs.append(r)
+        js.append(J)
+    r, J = np.concatenate(rs), np.concatenate(js)
+    return 0.5 * float(r @ r), J.T @ r, J.T @ J
+
+
+def _stopped(updates: dict, theta: dict, names: list, loss: float, grad, F, xtol: float, ftol: float) -> bool:
+    """:func:`fit`'s stopping test after an accepted step ``updates`` to ``theta``: every
+    component below ``xtol * max(1, |theta|)``, or the decrease a full Gauss-Newton step
+    predicts, ``0.5 g^T F^-1 g``, below ``ftol * max(1, loss)``."""
+    step = np.array([float(updates[k]) for k in names])
+    decrement = 0.5 * float(grad @ np.linalg.solve(F, grad))  # predicted decrease of a full step
+    return bool(np.all(np.abs(step) <= xtol * np.maximum(1.0, np.abs([theta[k] for k in names])))
+                or decrement <= ftol * max(1.0, loss))
+
+
 @entry_point
 def fit(scenes: Sequence[Scene], data: Sequence[dict], start: dict, *, sigma: dict, solver=None,
         max_iter: int = 20, xtol: float = 1e-9, ftol: float = 1e-6, callback: Callable | None = None) -> FitResult:
@@ -350,31 +388,13 @@ def fit(scenes: Sequence[Scene], data: Sequence[dict], start: dict, *, sigma: di
     """
     import optax
 
-    scenes, data = list(scenes), list(data)
-    if len(scenes) != len(data) or not scenes:
-        raise InputError(f"give one data set per scene: {len(scenes)} scenes, {len(data)} data sets")
-    if not (isinstance(sigma, dict) and sigma and all(k in ("u", "v", "T") for k in sigma)
-            and all(float(v) > 0 for v in sigma.values())):
-        raise InputError(f"sigma must map some of 'u', 'v', 'T' to positive noise levels, got {sigma!r}")
-    theta = _check_theta(start)
-    for s in scenes:
-        _check_scene(s)
+    scenes, data, theta = _check_fit_inputs(scenes, data, start, sigma)
     names = sorted(theta)  # the flattening order of theta (and of the Jacobians' last axis)
-
-    def evaluate(th):
-        rs, js = [], []
-        for s, d in zip(scenes, data):
-            run = simulate(s, th, solver=solver)
-            r, J = weighted_residuals(run.observed, d, sigma, run.jacobian)
-            rs.append(r)
-            js.append(J)
-        r, J = np.concatenate(rs), np.concatenate(js)
-        return 0.5 * float(r @ r), J.T @ r, J.T @ J
 
     opt = gauss_newton(1.0)
     params = {k: jnp.asarray(v) for k, v in theta.items()}
     state = opt.init(params)
-    loss, grad, F = evaluate(theta)
+    loss, grad, F = _gauss_newton_terms(scenes, data, theta, sigma, solver)
     evaluations = 1
     history, thetas = [loss], [dict(theta)]
     if callback is not None:
@@ -387,7 +407,7 @@ def fit(scenes: Sequence[Scene], data: Sequence[dict], start: dict, *, sigma: di
         trial_theta = {k: np.float64(v) for k, v in trial.items()}
         try:
             _check_theta(trial_theta)
-            new = evaluate(trial_theta)
+            new = _gauss_newton_terms(scenes, data, trial_theta, sigma, solver)
         except (InputError, StepFailure):  # outside the admissible range, or the run failed: shorter step
             new = None
         evaluations += 1
@@ -399,10 +419,7 @@ def fit(scenes: Sequence[Scene], data: Sequence[dict], start: dict, *, sigma: di
             history.append(loss)
             thetas.append(dict(theta))
             state = {"step": jnp.minimum(1.0, 4.0 * state["step"])}
-            step = np.array([float(updates[k]) for k in names])
-            decrement = 0.5 * float(grad @ np.linalg.solve(F, grad))  # predicted decrease of a full step
-            if (np.all(np.abs(step) <= xtol * np.maximum(1.0, np.abs([theta[k] for k in names])))
-                    or decrement <= ftol * max(1.0, loss)):
+            if _stopped(updates, theta, names, loss, grad, F, xtol, ftol):
                 converged = True
                 break
         else:
