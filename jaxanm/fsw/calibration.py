@@ -43,9 +43,10 @@ import numpy as np
 from .. import sensitivity
 from .._x64 import entry_point
 from ..errors import InputError, StepFailure
-from .geometry import PLATE, evaluate_stencils
-from .model import discretise
+from .geometry import evaluate_stencils
+from .model import complete_fields, discretise
 from .scene import Scene
+from .simulate import probe_points
 
 __all__ = ["PARAMETERS", "FitResult", "fit", "gauss_newton", "material_theta", "simulate", "theta_to_material",
            "value_and_grad", "weighted_residuals"]
@@ -79,8 +80,7 @@ def _observer(fields: tuple):
             out[group] = {}
             for name, st in targets.items():
                 vals = {f: jnp.sum(st["phi"] * X[i][st["index"]], axis=1) for i, f in enumerate(fields)}
-                zero = jnp.zeros(st["index"].shape[0])
-                full = {"u": vals.get("u", zero), "v": vals.get("v", zero), "T": vals.get("T", zero + p["c"]["T0"])}
+                full = complete_fields(vals, st["index"].shape[0], p["c"]["T0"], jnp)
                 out[group][name] = {k: v[0] for k, v in full.items()} if group == "probes" else full
         return out
 
@@ -144,11 +144,9 @@ def _setup(scene: Scene):
     g = scene.geometry
     cloud, stencils, model, params, x0 = discretise(scene)
     index, phi = np.asarray(stencils.index), np.asarray(stencils.phi)
-    plate = np.flatnonzero(cloud.kind == PLATE)
     obs = {"probes": {}, "sections": {}}
-    for p in scene.probes:  # the plate point nearest the probe position, as in jaxanm.fsw.run
-        i = int(plate[np.argmin(np.hypot(*(cloud.points[plate] - (p.x, p.y)).T))])
-        obs["probes"][p.name] = {"index": index[i:i + 1], "phi": phi[i:i + 1]}
+    for name, i in probe_points(scene, cloud).items():  # the plate point nearest the probe, as in a run
+        obs["probes"][name] = {"index": index[i:i + 1], "phi": phi[i:i + 1]}
     for s in scene.sections:
         st = evaluate_stencils(cloud.points, cloud.n_tool, g, np.linspace(s.start, s.end, s.samples))
         obs["sections"][s.name] = {"index": np.asarray(st.index), "phi": np.asarray(st.phi)}

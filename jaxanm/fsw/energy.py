@@ -22,7 +22,7 @@ import numpy as np
 
 from .. import mls
 from .geometry import build_cloud, build_stencils, evaluate_stencils
-from .model import make_model
+from .model import complete_fields, make_model, viscosity
 
 __all__ = ["annulus_quadrature", "dissipated_power", "stored_heat"]
 
@@ -46,7 +46,8 @@ def annulus_quadrature(r_in: float, r_out: float, cells: int = 60, angles: int =
 
 
 def _fields(result, s: int, targets: np.ndarray) -> dict:
-    """u, v, T and the velocity gradient at ``targets`` from the values of saved step ``s``."""
+    """u, v, T and the gradients of the scene's fields at ``targets`` from the values of saved
+    step ``s`` (the fields the scene lacks filled, :func:`~jaxanm.fsw.model.complete_fields`)."""
     scene = result.scene
     cloud = build_cloud(scene.geometry)
     model = make_model(scene, cloud)
@@ -61,9 +62,7 @@ def _fields(result, s: int, targets: np.ndarray) -> dict:
         if f in nodal:
             out[f] = np.asarray(mls.value(at, nodal[f]))
             out[f + "x"], out[f + "y"] = np.asarray(mls.grad(at, nodal[f])).T
-    if "T" not in out:
-        out["T"] = np.full(targets.shape[0], scene.thermal.T0)
-    return out
+    return {**out, **complete_fields(out, targets.shape[0], scene.thermal.T0)}
 
 
 def stored_heat(result, s: int = -1) -> float:
@@ -81,7 +80,8 @@ def dissipated_power(result, s: int = -1) -> float:
     """``int 3 mu epsbar^2 dA`` (W/m) over the plate of the velocity field at saved step ``s``.
 
     ``mu = K T^A (epsbar^2 + eps0^2)^((n-1)/2) / 3`` with ``T = T0`` unless the scene has
-    ``softening`` (the model's law), ``epsbar^2 = 2/3 epsdot : epsdot``.
+    ``softening`` (the model's law, :func:`~jaxanm.fsw.model.viscosity`), ``epsbar^2 = 2/3
+    epsdot : epsdot``.
     """
     scene = result.scene
     g, m = scene.geometry, scene.material
@@ -92,5 +92,5 @@ def dissipated_power(result, s: int = -1) -> float:
     exy = 0.5 * (f["uy"] + f["vx"])
     e2 = (2.0 / 3.0) * (f["ux"] ** 2 + f["vy"] ** 2 + 2.0 * exy ** 2)
     T = f["T"] if scene.has("softening") else scene.thermal.T0
-    mu = m.K / 3.0 * T ** m.A * (e2 + m.eps0 ** 2) ** (0.5 * (m.n - 1.0))
+    mu = viscosity(T, e2 + m.eps0 ** 2, m.K, m.A, m.n)
     return float(np.sum(w * 3.0 * mu * e2))

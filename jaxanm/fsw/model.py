@@ -91,8 +91,8 @@ from ..linalg import sparse_lu
 from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, Cloud, build_cloud, build_stencils
 from .scene import Scene
 
-__all__ = ["Discretisation", "Effects", "Model", "Refit", "discretise", "make_model",
-           "mu_reference"]
+__all__ = ["Discretisation", "Effects", "Model", "Refit", "complete_fields", "discretise", "make_model",
+           "mu_reference", "rigid", "viscosity"]
 
 CONSTANTS = ("K", "A", "n", "eps0", "rho", "Cp", "k", "beta", "rho_t", "Cp_t", "k_t", "omega",
              "h", "Ta", "T0", "lam", "dr", "U", "Ts", "mu_ref")
@@ -129,6 +129,25 @@ def mu_reference(scene: Scene) -> float:
     return m.K * th.T0 ** m.A * tl.omega ** (m.n - 1) / 3
 
 
+def viscosity(T, er2, K, A, n):
+    """The viscosity law ``mu = K T^A epsbar_reg^(n-1) / 3`` (Pa s) at temperature ``T`` and
+    ``er2 = epsbar_reg^2 = epsbar^2 + eps0^2``; numpy or jax arrays (the residual's own law)."""
+    return K / 3.0 * T ** A * er2 ** (0.5 * (n - 1.0))
+
+
+def rigid(kind: np.ndarray) -> np.ndarray:
+    """Points that turn with the tool: the tool and both sides of its edge (sticking)."""
+    return (kind == TOOL) | (kind == TOOL_EDGE) | (kind == PLATE_EDGE)
+
+
+def complete_fields(values: dict, n: int, T0, xp=np) -> dict:
+    """``{"u", "v", "T"}`` at n points from the fields a scene has (``values``), those it lacks
+    filled as the model holds them: V = 0 without ``viscous``, T = T0 without ``conduction``
+    (``xp``: numpy, or ``jax.numpy`` inside traced code)."""
+    zero = xp.zeros(n)
+    return {"u": values.get("u", zero), "v": values.get("v", zero), "T": values.get("T", zero + T0)}
+
+
 def _gather(st: mls.Stencils, f, weights):
     """Values of several stencil operators applied to nodal parameters ``f`` (N,)."""
     g = f[st.index]
@@ -155,8 +174,7 @@ def _momentum_rows(flags: Effects, st, p, dt, vel_nodal, vel_old_nodal, temp):
     exx, eyy, exy = ux, vy, 0.5 * (uy + vx)
     e2 = (2.0 / 3.0) * (exx * exx + eyy * eyy + 2.0 * exy * exy)
     er2 = e2 + c["eps0"] ** 2
-    alpha = temp[0] ** c["A"] if flags.softening else c["T0"] ** c["A"]
-    mu = c["K"] / 3.0 * alpha * er2 ** (0.5 * (c["n"] - 1.0))
+    mu = viscosity(temp[0] if flags.softening else c["T0"], er2, c["K"], c["A"], c["n"])
     # grad(ln mu) by the chain rule, from second derivatives of V (and grad T)
     exy_x, exy_y = 0.5 * (uxy + vxx), 0.5 * (uyy + vxy)
     de2x = (4.0 / 3.0) * (exx * uxx + eyy * vxy + 2.0 * exy * exy_x)
@@ -331,7 +349,7 @@ class Model:
     def initial_values(self, points: np.ndarray) -> np.ndarray:
         """Initial field values (N, len(fields)): the tool (and its edge) turning, plate at rest, T0."""
         sc, kind = self.scene, self.cloud.kind
-        sticking = (kind == TOOL) | (kind == TOOL_EDGE) | (kind == PLATE_EDGE)
+        sticking = rigid(kind)
         omega = sc.tool.omega
         cols = {"u": np.where(sticking, -omega * points[:, 1], 0.0),
                 "v": np.where(sticking, omega * points[:, 0], 0.0),
@@ -393,6 +411,11 @@ class Model:
         """Nodal parameters per field: ``{"u": (N,), ...}`` from the flat unknowns ``x``."""
         X = np.asarray(x).reshape(len(self.fields), self.cloud.size)
         return dict(zip(self.fields, X))
+
+    def full_values(self, values: np.ndarray) -> dict:
+        """``{"u", "v", "T"}`` from field values (M, len(fields)) at M points, the fields the
+        scene lacks filled (:func:`complete_fields`)."""
+        return complete_fields(dict(zip(self.fields, values.T)), values.shape[0], self.scene.thermal.T0)
 
     def values(self, x, stencils: mls.Stencils) -> np.ndarray:
         """Field values at the stencils' points, (M, len(fields)), from the unknowns ``x``.

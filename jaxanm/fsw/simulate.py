@@ -33,9 +33,8 @@ from scipy.spatial import cKDTree
 
 import jaxanm
 
-from .geometry import (PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_stencils, evaluate_stencils,
-                       neighbour_list)
-from .model import Model, Refit, discretise
+from .geometry import PLATE, build_stencils, evaluate_stencils, neighbour_list
+from .model import Model, Refit, discretise, rigid
 from .scene import Scene
 from .start import StartReport, quasi_static_state
 
@@ -95,27 +94,14 @@ def _rotate(points: np.ndarray, angle: float) -> np.ndarray:
     return points @ np.array([[c, s], [-s, c]])
 
 
-def _rigid(kind: np.ndarray) -> np.ndarray:
-    """Points that turn with the tool: the tool and both sides of its edge (sticking)."""
-    return (kind == TOOL) | (kind == TOOL_EDGE) | (kind == PLATE_EDGE)
-
-
 def _move(points: np.ndarray, kind: np.ndarray, velocity: np.ndarray, omega: float, dt: float) -> np.ndarray:
     """Material motion over dt: tool and edge points rotate rigidly, the others follow V."""
-    return np.where(_rigid(kind)[:, None], _rotate(points, omega * dt), points + dt * velocity)
+    return np.where(rigid(kind)[:, None], _rotate(points, omega * dt), points + dt * velocity)
 
 
 def _velocity(values: dict) -> np.ndarray:
     """(N, 2) velocity from the ``{"u", "v", "T"}`` values."""
     return np.stack([values["u"], values["v"]], axis=1)
-
-
-def _full_values(model: Model, values: np.ndarray) -> dict:
-    """``{"u", "v", "T"}`` at the points, filling the absent fields (V = 0, T = T0)."""
-    cols = dict(zip(model.fields, values.T))
-    zero = np.zeros(values.shape[0])
-    return {"u": cols.get("u", zero), "v": cols.get("v", zero),
-            "T": cols.get("T", np.full(values.shape[0], model.scene.thermal.T0))}
 
 
 def probe_points(scene: Scene, cloud) -> dict:
@@ -166,7 +152,7 @@ class _Recorder:
         self._save_sections(x0)
         if initial is None:
             initial = model.initial_values(self.points)
-        self._record(0.0, self.points, _full_values(model, initial), save=True)
+        self._record(0.0, self.points, model.full_values(initial), save=True)
 
     def _record(self, t: float, positions: np.ndarray, values: dict, save: bool) -> None:
         """Probe values at every step; fields (and tracers) at the save steps.
@@ -202,7 +188,7 @@ class _Recorder:
         (``neighbours``: candidate lists kept for these targets, see :func:`neighbour_list`)."""
         st = evaluate_stencils(self.points, self.model.cloud.n_tool, self.scene.geometry, targets,
                                derivatives=False, neighbours=neighbours)  # values only: 2x cheaper
-        return _full_values(self.model, self.model.values(x, st))
+        return self.model.full_values(self.model.values(x, st))
 
     def _advected(self, particles: np.ndarray, x, dt: float) -> np.ndarray:
         """Passive particles moved over dt by the flow of unknowns ``x`` on the current nodes."""
@@ -213,7 +199,7 @@ class _Recorder:
         """Fields at the material points: the nodes' own values where they coincide (tool and
         tool-edge points, never re-seeded), elsewhere the MLS values ``at_free`` at the other
         (free) material points, in their order."""
-        free = ~_rigid(self.model.cloud.kind)
+        free = ~rigid(self.model.cloud.kind)
         out = {k: v.copy() for k, v in node_values.items()}
         for k in "uvT":
             out[k][free] = at_free[k]
@@ -250,7 +236,7 @@ class _Recorder:
         The caller then moves the nodes and refits the unknowns as after any Lagrangian step.
         """
         cloud = self.model.cloud
-        moved = np.isin(cloud.kind, (PLATE, RING))
+        moved = ~rigid(cloud.kind)
         new_values = np.array(values)
         new_values[moved] = self.model.values(x, evaluate_stencils(self.points, cloud.n_tool, self.scene.geometry,
                                                                    cloud.points[moved], derivatives=False))
@@ -268,7 +254,7 @@ class _Recorder:
         self.t = float(t_new)
         x = np.asarray(x)
         values = model.values(x, params["st"])
-        full = _full_values(model, values)
+        full = model.full_values(values)
         save = self.step in self.save_steps if self.save_times is None else self.t in self.save_times
         if save:
             self._save_sections(x)
@@ -285,7 +271,7 @@ class _Recorder:
         else:
             # MLS values at the free material points only: the rigid ones (tool and both sides
             # of its edge) take the nodes' values and turn with the tool
-            at = self._values_at(x, self.markers[~_rigid(kind)], self.marker_neighbours)
+            at = self._values_at(x, self.markers[~rigid(kind)], self.marker_neighbours)
             material_values = self._marker_values(full, at)
             material = self.markers = _move(self.markers, kind, _velocity(material_values), omega, dt)
         rezoned = self._sheared(np.asarray(params["st"].index))
@@ -293,7 +279,7 @@ class _Recorder:
             if self.markers is None:  # the material points go on from where the nodes were
                 self.markers = material
             values = self._rezone(x, values)
-            full = _full_values(model, values)
+            full = model.full_values(values)
         self.points = _move(self.points, kind, _velocity(full), omega, dt)
         self._record(self.t, material, material_values, save)
         st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width,
