@@ -14,6 +14,8 @@ import os
 import pickle
 import signal
 import tempfile
+from collections.abc import Iterator
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -28,22 +30,39 @@ def to_host(tree):
     return jax.tree_util.tree_map(lambda a: np.asarray(a) if hasattr(a, "shape") else a, tree)
 
 
-def write_atomic(path, payload: dict) -> None:
-    """Pickle ``payload`` to ``path`` atomically (temporary file + ``os.replace``)."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".ckpt-", dir=directory)
+@contextlib.contextmanager
+def atomic_path(path, prefix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success move it onto ``path`` atomically.
+
+    The temporary file (named ``prefix`` + random, default ``.<name>.`` + random + ``.tmp``) is
+    created in the destination directory (so ``os.replace`` is an atomic rename on the same
+    file system) and removed if the ``with`` block raises: a reader never sees a half-written
+    file, and a failed write leaves the old one in place.  The one atomic write of jaxanm
+    (checkpoints, and every output file through :func:`jaxanm.fsw.output.atomic_path`).
+    """
+    path = Path(path)
+    if prefix is None:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    else:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=prefix)
+    os.close(fd)
+    tmp = Path(tmp)
     try:
-        with os.fdopen(fd, "wb") as fh:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_atomic(path, payload: dict) -> None:
+    """Pickle ``payload`` to ``path`` atomically (:func:`atomic_path`), synced to disk first."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, prefix=".ckpt-") as tmp:
+        with open(tmp, "wb") as fh:
             pickle.dump({"format": FORMAT_VERSION, **payload}, fh, protocol=pickle.HIGHEST_PROTOCOL)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
 
 
 def read(path) -> dict:

@@ -11,50 +11,31 @@
     vtu/fields_00000.vtu ...       point cloud (VTK vertex cells) with u, v, T, speed, material
     fig02_*.png ... fig11_*.png    the paper's figures (see :mod:`jaxanm.fsw.figures`)
 
-Every file is written atomically: to a temporary name in the same directory, then
-``os.replace``-d onto its final name, so a reader never sees a half-written file and an
-interrupted run leaves no partial file behind.
+Every file is written atomically (:func:`jaxanm.checkpoint.atomic_path`, re-exported here): to
+a temporary name in the same directory, then ``os.replace``-d onto its final name, so a reader
+never sees a half-written file and an interrupted run leaves no partial file behind.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import enum
 import json
 import logging
 import os
-import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from jaxanm.checkpoint import atomic_path
 from jaxanm.fsw import figures
 
 log = logging.getLogger(__name__)
 
 VTU_DIR = "vtu"
 """Sub-directory of the output directory holding the VTU files."""
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success move it onto ``path`` atomically.
-
-    The temporary file is created in the destination directory (so ``os.replace`` is an
-    atomic rename on the same file system) and removed if the ``with`` block raises.
-    """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def to_jsonable(obj):
