@@ -54,13 +54,12 @@ from pathlib import Path
 
 from jaxanm import compile_cache
 from jaxanm.errors import InputError, SingularMatrixError, StepFailure
+from jaxanm.fsw.scene import SOLVER_NAMES
 
 PROG = "jaxanm"
 DEFAULT_SCENE = "fsw_paper"
 CHECKPOINT_NAME = "checkpoint.pkl"
 """File name of the checkpoint inside the output directory."""
-SOLVER_KINDS = {"anm": "anm", "newton": "newton", "mnewton": "modified_newton"}
-"""Command-line solver names -> ``solver.kind`` of the scene."""
 
 
 class UsageError(Exception):
@@ -91,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"shipped scene name or path to a scene TOML file (default {DEFAULT_SCENE}; "
                      "with --resume: the scene stored in the checkpoint)")
     run.add_argument("--t-end", type=float, metavar="S", help="end time in s (time.t_end)")
-    run.add_argument("--solver", choices=tuple(SOLVER_KINDS),
+    run.add_argument("--solver", choices=tuple(SOLVER_NAMES),
                      help="nonlinear step solver (solver.kind; mnewton = modified Newton)")
     run.add_argument("--order", type=int, metavar="P", help="ANM truncation order (solver.order)")
     run.add_argument("--tol", type=float, metavar="X",
@@ -171,7 +170,7 @@ def load_run_scene(args: argparse.Namespace, base=None):
     overrides, then the shorthand options."""
     overrides = parse_overrides(args.overrides)
     shorthands = {"time.t_end": args.t_end, "solver.order": args.order, "solver.tol": args.tol,
-                  "solver.kind": SOLVER_KINDS.get(args.solver)}
+                  "solver.kind": SOLVER_NAMES.get(args.solver)}
     if args.scene is not None or base is None:
         scene = _load_scene(args.scene or DEFAULT_SCENE)
     else:

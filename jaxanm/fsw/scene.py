@@ -35,6 +35,8 @@ __all__ = [
     "Material",
     "Mechanics",
     "Probe",
+    "SOLVER_KINDS",
+    "SOLVER_NAMES",
     "Scene",
     "SceneError",
     "Section",
@@ -93,7 +95,11 @@ LAYOUTS = ("polar", "grid", "graded")
 EDGE_ROWS = ("flux", "half_cell")
 EDGE_SOURCES = ("point", "exponential")
 """Temperature rows of the plate-edge points (:class:`Thermal`)."""
-SOLVER_KINDS = ("anm", "newton", "modified_newton")
+SOLVER_NAMES = {"anm": "anm", "newton": "newton", "mnewton": "modified_newton"}
+"""The table of solver kinds: short name (the CLI's ``--solver``, a sweep grid's ``kind``) ->
+``solver.kind`` of a scene (:class:`SolverSpec`)."""
+SOLVER_KINDS = tuple(SOLVER_NAMES.values())
+"""The ``solver.kind`` values a scene accepts."""
 STARTS = ("rest", "quasi_static")
 """Flows at t = 0 (:class:`Mechanics`)."""
 MAX_POINTS = 200_000
