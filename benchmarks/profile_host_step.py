@@ -88,13 +88,13 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
     dt = t - recorder.t
     st = params["st"]
     values = model.values(x, st)
-    full = sim._full_values(model, values)
+    full = model.full_values(values)
     moved = sim._move(recorder.points, kind, sim._velocity(full), omega, dt)
     new_st = sim.build_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width)
     fresh = lambda: copy.deepcopy(recorder)  # noqa: E731 - every timed call sees the same step
     parts = {}
     parts["values (model.values)"] = median_ms(lambda _: model.values(x, st), repeats)
-    parts["full values"] = median_ms(lambda _: sim._full_values(model, values), repeats)
+    parts["full values"] = median_ms(lambda _: model.full_values(values), repeats)
     parts["record probes"] = median_ms(lambda r: r._record(t, moved, full, False), repeats, fresh)
     parts["move"] = median_ms(lambda _: sim._move(recorder.points, kind, sim._velocity(full), omega, dt), repeats)
     # the code before issue 14 took no arguments here (a cKDTree per call): both are profiled
