@@ -29,7 +29,7 @@ import numpy as np
 import jaxanm
 
 from .geometry import evaluate_stencils
-from .model import discretise
+from .model import complete_fields, discretise
 from .scene import Scene
 from .simulate import FSWResult, probe_points
 
@@ -62,17 +62,13 @@ def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None
     with jaxanm.float64():
         sol = integrate_ida(model.residual, x0, params, t0=0.0, t_out=times, rtol=float(rtol), atol=float(atol),
                             max_order=int(max_order), scale=model.scale(), sparsity=model.sparsity)
-    col = {f: i for i, f in enumerate(model.fields)}
-    n = cloud.points.shape[0]
     vals = np.concatenate([model.initial_values(cloud.points)[None],
                            np.array([model.values(x, st) for x in sol.xs])])  # (S, N, F)
 
-    def field(name: str, v: np.ndarray) -> np.ndarray:
-        if name in col:
-            return v[..., col[name]]
-        return np.full(v.shape[:-1], scene.thermal.T0 if name == "T" else 0.0)
+    def fields(v: np.ndarray) -> dict:  # (S, M, F) -> u, v, T (S, M), absent fields filled
+        return complete_fields(dict(zip(model.fields, np.moveaxis(v, -1, 0))), v.shape[:-1], scene.thermal.T0)
 
-    u, v, T = (field(k, vals) for k in ("u", "v", "T"))
+    u, v, T = (fields(vals)[k] for k in ("u", "v", "T"))
     t_saved = np.concatenate([[0.0], sol.ts])
     probes = {"t": t_saved}
     for name, i in probe_points(scene, cloud).items():
@@ -85,7 +81,7 @@ def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None
         at = evaluate_stencils(cloud.points, cloud.n_tool, scene.geometry, targets, derivatives=False)
         values = np.array([model.values(x, at) for x in xs])
         sections[sec.name] = {"x": targets[:, 0], "y": targets[:, 1], "s": np.hypot(*(targets - targets[0]).T),
-                              **{k: field(k, values) for k in ("u", "v", "T")}}
+                              **fields(values)}
     s = sol.stats
     stats = jaxanm.Stats(factorizations=s.jacobian_evaluations, jacobian_evaluations=s.jacobian_evaluations,
                          time_steps=s.steps, residual_evaluations=s.residual_evaluations,

@@ -141,9 +141,9 @@ def rigid(kind: np.ndarray) -> np.ndarray:
 
 
 def complete_fields(values: dict, n: int, T0, xp=np) -> dict:
-    """``{"u", "v", "T"}`` at n points from the fields a scene has (``values``), those it lacks
-    filled as the model holds them: V = 0 without ``viscous``, T = T0 without ``conduction``
-    (``xp``: numpy, or ``jax.numpy`` inside traced code)."""
+    """``{"u", "v", "T"}`` at n points (or of array shape n) from the fields a scene has
+    (``values``), those it lacks filled as the model holds them: V = 0 without ``viscous``,
+    T = T0 without ``conduction`` (``xp``: numpy, or ``jax.numpy`` inside traced code)."""
     zero = xp.zeros(n)
     return {"u": values.get("u", zero), "v": values.get("v", zero), "T": values.get("T", zero + T0)}
 

@@ -68,13 +68,11 @@ import re
 import tomllib
 from pathlib import Path
 
-from jaxanm.fsw.scene import Scene, SceneError, load_scene, override_keys
+from jaxanm.fsw.scene import SOLVER_NAMES, Scene, SceneError, load_scene, override_keys
 
 __all__ = ["IDA", "RICHARDSON", "SOLVER_KEYS", "Grid", "GridError", "Richardson", "Task", "grid_from_dict",
            "read_grid"]
 
-SOLVER_KINDS = {"anm": "anm", "newton": "newton", "mnewton": "modified_newton"}
-"""Implicit-Euler solver kinds of a grid (those of ``jaxanm run --solver``) -> ``solver.kind`` of the scene."""
 IDA = "ida"
 """The grid kind of IDA tasks (no scene solver: :mod:`jaxanm.fsw.ida_scene`)."""
 SOLVER_KEYS = {
@@ -313,8 +311,8 @@ def _list_valued(flat: dict, base: Scene) -> set:
 def _solver_points(value, base: Scene, source: str) -> list[dict]:
     """Every point of the ``solvers`` entries: ``{"solver.<key>": value}`` (kind as the scene names
     it, or ``ida``) and the entry's own scene overrides (dotted keys)."""
-    scene_kinds = {v: k for k, v in SOLVER_KINDS.items()}
-    kinds_text = ", ".join([*SOLVER_KINDS, IDA])
+    scene_kinds = {v: k for k, v in SOLVER_NAMES.items()}
+    kinds_text = ", ".join([*SOLVER_NAMES, IDA])
     points = []
     for i, raw in enumerate(_entries(value, "solvers", source)):
         where = f"{source}: [solvers]" if isinstance(value, dict) else f"{source}: [[solvers]] #{i + 1}"
@@ -335,7 +333,7 @@ def _solver_points(value, base: Scene, source: str) -> list[dict]:
                            else "it is not a solver setting")
                     raise GridError(f"{where}: {key!r}: {why}; kind {short!r} takes "
                                     f"{', '.join(SOLVER_KEYS[short])} (put other kinds in their own [[solvers]] entry)")
-            fixed = {"solver.kind": IDA if short == IDA else SOLVER_KINDS[short]} if "kind" in entry else {}
+            fixed = {"solver.kind": IDA if short == IDA else SOLVER_NAMES[short]} if "kind" in entry else {}
             settings = {f"solver.{k}": v for k, v in entry.items() if k != "kind" and k not in scene_part}
             solver = _product(settings, set(), where)
             scenes = _product(scene_part, _list_valued(scene_part, base), where)
@@ -391,7 +389,7 @@ def _task_ids(points: list[dict], keys: tuple) -> list[str]:
             if key not in p:
                 continue
             if key == "solver.kind":
-                parts.append({v: k for k, v in SOLVER_KINDS.items()}.get(p[key], p[key]))
+                parts.append({v: k for k, v in SOLVER_NAMES.items()}.get(p[key], p[key]))
             else:
                 parts.append(f"{end if ends.count(end) == 1 else key}={_format(p[key])}")
         ids.append(re.sub(r"[^A-Za-z0-9_.+=-]", "_", "-".join(parts)) or "run")
