@@ -230,8 +230,9 @@ class Geometry(_Section):
     about ``2 pi r`` over its spacing points, and each point's MLS influence radius is
     ``h_factor`` times its ring's spacing (``band``, ``dr_far`` and ``grading`` are used by
     this layout only).  fsw_tracers' physics on 1603 graded points (dr = 0.085 mm, band 0.17
-    mm, dr_far 0.375 mm; scene ``fsw_graded``) errs in the temperature rise by 4.4-4.7 % over
-    0.05-0.3 s, against 12-14 % on 1727 and 9-11 % on 3369 uniform points
+    mm, dr_far 0.375 mm; scene ``fsw_graded``) errs in the temperature rise by 1.1-1.7 % over
+    0.05-0.3 s with ``thermal.edge_source = "exponential"`` (4.4-4.7 % with the one-point
+    source), against 12-14 % on 1727 and 9-11 % on 3369 uniform points
     (docs/notes/spatial_accuracy.md); it is validated on fixed points only, and a scene with
     ``lagrangian`` on it is refused.
 
