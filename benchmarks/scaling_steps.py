@@ -50,9 +50,9 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def worker(dr: float, solver: str, steps: int, start_kind: str) -> None:
+def worker(dr: float, solver: str, steps: int, start_kind: str, overrides: dict) -> None:
     """Run fsw_paper at spacing ``dr`` with ``solver`` over ``steps`` steps, started as
-    ``start_kind`` (``mechanics.start``); print JSON lines (one per accepted step, then the
+    ``start_kind`` (``mechanics.start``), with the scene ``overrides``; print JSON lines (one per accepted step, then the
     summary) so that a stopped run keeps what it did."""
     from jaxanm import compile_cache
     from jaxanm.fsw import load_scene, run
@@ -62,7 +62,7 @@ def worker(dr: float, solver: str, steps: int, start_kind: str) -> None:
     base = load_scene("fsw_paper")
     scene = base.with_overrides({"geometry.dr": dr, "solver.kind": SOLVER_KINDS[solver],
                                  "time.t_end": steps * base.time.dt,
-                                 "mechanics.start": start_kind})
+                                 "mechanics.start": start_kind, **overrides})
     from jaxanm.fsw.geometry import build_cloud
 
     print(json.dumps({"N": int(build_cloud(scene.geometry).size)}), flush=True)
@@ -85,9 +85,10 @@ def worker(dr: float, solver: str, steps: int, start_kind: str) -> None:
           flush=True)
 
 
-def measure(dr: float, solver: str, steps: int, timeout: float, start_kind: str) -> dict:
+def measure(dr: float, solver: str, steps: int, timeout: float, start_kind: str, overrides: dict) -> dict:
     """One run in a fresh process; its step stamps, summary and peak memory."""
-    proc = subprocess.Popen([sys.executable, __file__, "--worker", repr(dr), solver, str(steps), start_kind],
+    proc = subprocess.Popen([sys.executable, __file__, "--worker", repr(dr), solver, str(steps), start_kind,
+                             json.dumps(overrides)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     load0 = os.getloadavg()[0]
     try:
@@ -100,7 +101,7 @@ def measure(dr: float, solver: str, steps: int, timeout: float, start_kind: str)
     lines = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
     stamps = [x for x in lines if "t" in x]
     summary = next((x for x in lines if x.get("done")), {})
-    row = {"N": next((x["N"] for x in lines if "N" in x), None), "dr": dr, "solver": solver, "start_kind": start_kind, "steps_asked": steps, "steps_done": len(stamps), "timed_out": timed_out,
+    row = {"N": next((x["N"] for x in lines if "N" in x), None), "dr": dr, "solver": solver, "start_kind": start_kind, "overrides": overrides, "steps_asked": steps, "steps_done": len(stamps), "timed_out": timed_out,
            "returncode": proc.returncode, "load": [load0, os.getloadavg()[0]], "stamps": stamps, **summary}
     rss = [x["rss_mb"] for x in lines if "rss_mb" in x]
     if rss:
@@ -139,7 +140,8 @@ def markdown(result: dict) -> str:
         last = r["stamps"][-1] if r["stamps"] else {}
         st = r.get("start") or {}
         start_cost = f"{st['factorizations']}, {st['wall']:.3g}" if st else ""
-        lines.append(f"| {r['dr']:.4g} | {r.get('N') or ''} | {r['solver']} | {r.get('start_kind', 'rest')} "
+        label = r["solver"] + "".join(f", {k}={v}" for k, v in (r.get("overrides") or {}).items())
+        lines.append(f"| {r['dr']:.4g} | {r.get('N') or ''} | {label} | {r.get('start_kind', 'rest')} "
                      f"| {start_cost} | {done} | {f(r.get('first_step_s'))} "
                      f"| {f(r.get('median_step_s'))} | {f(r.get('mean_step_s'))} "
                      f"| {stats.get('factorizations', last.get('factorizations', ''))} "
@@ -187,10 +189,12 @@ def main(argv=None) -> None:
     ap.add_argument("--start", default="rest", choices=("rest", "quasi_static"),
                     help="mechanics.start of every run: from rest (the scene's default) or from the "
                          "stationary flow at T0 solved first (finer clouds need it)")
-    ap.add_argument("--worker", nargs=4, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="scene override of every run (as `jaxanm run --set`), e.g. solver.max_rate=0.9")
+    ap.add_argument("--worker", nargs=5, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker is not None:
-        worker(float(args.worker[0]), args.worker[1], int(args.worker[2]), args.worker[3])
+        worker(float(args.worker[0]), args.worker[1], int(args.worker[2]), args.worker[3], json.loads(args.worker[4]))
         return
     out = pathlib.Path(args.out)
     if args.report_only:
@@ -199,11 +203,15 @@ def main(argv=None) -> None:
     from jaxanm.fsw import load_scene
 
     dr = load_scene("fsw_paper").geometry.dr
+    bad = [kv for kv in args.set if "=" not in kv]
+    if bad:
+        ap.error(f"--set takes KEY=VALUE, got {bad[0]!r}")
+    overrides = dict(kv.split("=", 1) for kv in args.set)
     result = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "cpus": os.cpu_count(),
               "argv": sys.argv[1:] if argv is None else list(argv), "runs": []}
     for d in args.divisors:
         for solver in args.solvers:
-            row = measure(dr / d, solver, args.steps, args.timeout, args.start)
+            row = measure(dr / d, solver, args.steps, args.timeout, args.start, overrides)
             result["runs"].append(row)
             print({k: v for k, v in row.items() if k != "stamps"}, flush=True)
             out.with_suffix(".json").write_text(json.dumps(result, indent=1))
