@@ -16,6 +16,8 @@ import dataclasses
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = ["Oscillation", "oscillation"]
 
 
@@ -73,11 +75,13 @@ def oscillation(times, values, window=(0.05, 0.3), degree: int = 3) -> Oscillati
     t = np.asarray(times, dtype=np.float64)
     y = np.asarray(values, dtype=np.float64)
     if t.shape != y.shape or t.ndim != 1:
-        raise ValueError(f"times and values must be 1-D arrays of one length, got {t.shape} and {y.shape}")
+        raise InputError(f"times and values must be 1-D arrays of one length, got {t.shape} and {y.shape}: "
+                         "pass one history, e.g. probes.csv's t and one probe's speed")
     t0, t1 = window
     inside = (t >= t0) & (t <= t1)
     if inside.sum() <= degree + 1:
-        raise ValueError(f"{int(inside.sum())} samples in the window {window}: need more than degree + 1 = {degree + 1}")
+        raise InputError(f"{int(inside.sum())} samples in the window {window}: need more than degree + 1 = "
+                         f"{degree + 1}; widen the window or lower the degree")
     t, y = t[inside], y[inside]
     x = 2.0 * (t - t[0]) / (t[-1] - t[0]) - 1.0
     trend = np.polynomial.legendre.Legendre.fit(x, y, degree, domain=[-1, 1])(x)
