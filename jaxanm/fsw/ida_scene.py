@@ -29,7 +29,7 @@ import numpy as np
 import jaxanm
 
 from .geometry import evaluate_stencils
-from .model import complete_fields, discretise
+from .model import discretise
 from .scene import Scene
 from .simulate import FSWResult, probe_points
 
@@ -64,11 +64,8 @@ def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None
                             max_order=int(max_order), scale=model.scale(), sparsity=model.sparsity)
     vals = np.concatenate([model.initial_values(cloud.points)[None],
                            np.array([model.values(x, st) for x in sol.xs])])  # (S, N, F)
-
-    def fields(v: np.ndarray) -> dict:  # (S, M, F) -> u, v, T (S, M), absent fields filled
-        return complete_fields(dict(zip(model.fields, np.moveaxis(v, -1, 0))), v.shape[:-1], scene.thermal.T0)
-
-    u, v, T = (fields(vals)[k] for k in ("u", "v", "T"))
+    full = model.full_values(vals)
+    u, v, T = full["u"], full["v"], full["T"]
     t_saved = np.concatenate([[0.0], sol.ts])
     probes = {"t": t_saved}
     for name, i in probe_points(scene, cloud).items():
@@ -81,7 +78,7 @@ def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None
         at = evaluate_stencils(cloud.points, cloud.n_tool, scene.geometry, targets, derivatives=False)
         values = np.array([model.values(x, at) for x in xs])
         sections[sec.name] = {"x": targets[:, 0], "y": targets[:, 1], "s": np.hypot(*(targets - targets[0]).T),
-                              **fields(values)}
+                              **model.full_values(values)}
     s = sol.stats
     stats = jaxanm.Stats(factorizations=s.jacobian_evaluations, jacobian_evaluations=s.jacobian_evaluations,
                          time_steps=s.steps, residual_evaluations=s.residual_evaluations,

@@ -413,9 +413,10 @@ class Model:
         return dict(zip(self.fields, X))
 
     def full_values(self, values: np.ndarray) -> dict:
-        """``{"u", "v", "T"}`` from field values (M, len(fields)) at M points, the fields the
-        scene lacks filled (:func:`complete_fields`)."""
-        return complete_fields(dict(zip(self.fields, values.T)), values.shape[0], self.scene.thermal.T0)
+        """``{"u", "v", "T"}`` from field values (..., len(fields)), e.g. (M,) at M points or
+        (S, M) at S saved steps, the fields the scene lacks filled (:func:`complete_fields`)."""
+        return complete_fields(dict(zip(self.fields, np.moveaxis(values, -1, 0))), values.shape[:-1],
+                               self.scene.thermal.T0)
 
     def values(self, x, stencils: mls.Stencils) -> np.ndarray:
         """Field values at the stencils' points, (M, len(fields)), from the unknowns ``x``.
