@@ -3,12 +3,14 @@ peak memory against the number of points N (issue 14, item 3).
 
 Where ``benchmarks/scaling.py`` composes a step from component costs, this script runs the
 scene itself: for each point spacing ``dr / d`` (``--divisors``) and each solver
-(``--solvers``), a fresh worker process runs ``jaxanm.fsw.run`` from rest over ``--steps``
-time steps of the scene's dt, with a callback that stamps the wall time and the run's
+(``--solvers``), a fresh worker process runs ``jaxanm.fsw.run`` over ``--steps`` time steps
+of the scene's dt, from rest or (``--start quasi_static``) from the stationary flow at T0,
+with the scene overrides of ``--set``, and with a callback that stamps the wall time and the run's
 counters after every accepted step.  Reported per run:
 
+- the quasi-static start's factorisations and wall time, on their own;
 - the first step (compilation, from `jaxanm run`'s persistent cache when a run of the same
-  level came before; the impulsive start's factorisations) and the median and mean
+  level came before; from rest, the impulsive start's factorisations) and the median and mean
   wall time of the later steps (the mean includes their factorisations, the median is a step
   without one when fewer than half refactorise);
 - factorisations, Jacobians, series orders or Newton iterations, dt halvings, and the wall-time
@@ -19,7 +21,7 @@ counters after every accepted step.  Reported per run:
 
 Exponents are least-squares slopes of log(cost) against log(N) over the levels that finished.
 
-    python benchmarks/scaling_steps.py --divisors 1 2 4 --solvers anm mnewton --steps 20
+    python benchmarks/scaling_steps.py --divisors 1 2 4 8 --solvers anm mnewton --steps 10 --start quasi_static
 
 Writes ``docs/scaling_steps.{json,md,png}`` (``--out``).  Runs go one after the other; quote the
 load printed beside each (two shared cores).
@@ -52,8 +54,8 @@ def _rss_mb() -> float:
 
 def worker(dr: float, solver: str, steps: int, start_kind: str, overrides: dict) -> None:
     """Run fsw_paper at spacing ``dr`` with ``solver`` over ``steps`` steps, started as
-    ``start_kind`` (``mechanics.start``), with the scene ``overrides``; print JSON lines (one per accepted step, then the
-    summary) so that a stopped run keeps what it did."""
+    ``start_kind`` (``mechanics.start``), with the scene ``overrides``; print JSON lines (one
+    per accepted step, then the summary) so that a stopped run keeps what it did."""
     from jaxanm import compile_cache
     from jaxanm.fsw import load_scene, run
 
