@@ -198,7 +198,7 @@ def run_implicit(prob: dict, solver, x0, t0=None, t1=None, dt=None, budget_s=Non
     sol = jaxanm.integrate(prob["residual"], x0, prob["params"], t0=prob["t0"] if t0 is None else t0,
                            t1=prob["t1"] if t1 is None else t1, dt=prob["dt"] if dt is None else dt,
                            solver=solver, scale=prob["scale"], jacobian=prob["jacobian"],
-                           sparsity=prob["sparsity"], save_every=10**9, max_dt_halvings=0,
+                           sparsity=prob["sparsity"], saveat=jaxanm.SaveAt(steps=10**9), max_dt_halvings=0,
                            callback=watchdog)
     wall = time.perf_counter() - start
     sol.stats.cpu_s = time.process_time() - cpu

@@ -135,7 +135,7 @@ def _fsw_integrate(overrides, solver, *, steps=None, callback=None):
     tm = scene.time
     t1 = tm.t_end if steps is None else steps * tm.dt
     sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=t1, dt=tm.dt, solver=solver,
-                           scale=model.scale(), jacobian="sparse", sparsity=model.sparsity, save_every=1,
+                           scale=model.scale(), jacobian="sparse", sparsity=model.sparsity, saveat=jaxanm.SaveAt(steps=1),
                            callback=callback)
     x, x_old = sol.xs[-1], sol.xs[-2]
     dt = sol.ts[-1] - sol.ts[-2]
@@ -146,7 +146,7 @@ def _fsw_integrate(overrides, solver, *, steps=None, callback=None):
 
 def _model_integrate(problem, solver, t1, dt, **kw):
     residual, x0, params = problem
-    sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=t1, dt=dt, solver=solver, save_every=1,
+    sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=t1, dt=dt, solver=solver, saveat=jaxanm.SaveAt(steps=1),
                            jacobian="dense", **kw)
     ratio = None
     if not sol.stats.dt_halvings:
@@ -303,7 +303,7 @@ def near_coincident(delta, solver=None):
         params = model.params(points, stencils)
         x0 = model.initial_state(points)
         sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=1.0, dt=1.0, solver=solver,
-                               scale=model.scale(), jacobian="sparse", sparsity=model.sparsity, save_every=1)
+                               scale=model.scale(), jacobian="sparse", sparsity=model.sparsity, saveat=jaxanm.SaveAt(steps=1))
         values = model.values(sol.xs[-1], stencils)[:, :2] / (scene.tool.omega * scene.geometry.R1)
         notes.append(f"max |nodal parameter| = {np.abs(sol.xs[-1] / model.scale()).max():.3g} omega R1, "
                      f"max |value at the points| = {np.abs(values).max():.3g} omega R1")

@@ -13,6 +13,7 @@ from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
 from .integrate import Remap, SensitivityMethod, Solution, integrate
 from .jacobian import SparseJacobian, color_columns, detect_sparsity
 from .linalg import Factorization, factorize
+from .saveat import SaveAt
 from .sensitivity import ForwardSensitivity, Sensitivities, sensitivities, value_and_grad
 from .series import taylor_coefficients
 from .solvers import ANM, ModifiedNewton, Newton, SolverState, StepSolver, evaluate_series, validity_range
@@ -28,6 +29,7 @@ __all__ = [
     "Newton",
     "NonFiniteError",
     "Remap",
+    "SaveAt",
     "Sensitivities",
     "SensitivityMethod",
     "SingularMatrixError",

@@ -200,10 +200,11 @@ def _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps):
 def _consistent_start(residual, x0, params, t0, ic_dt, ic_tol, scale, pattern):
     """Two implicit-Euler steps of ``ic_dt``: ``(t0 + 2 ic_dt, x2, (x2 - x1) / ic_dt, stats)``."""
     from .integrate import integrate
+    from .saveat import SaveAt
     from .solvers import Newton
 
     sol = integrate(residual, x0, params, t0=t0, t1=t0 + 2 * ic_dt, dt=ic_dt, solver=Newton(tol=ic_tol),
-                    scale=scale, jacobian="sparse", sparsity=pattern, save_every=1)
+                    scale=scale, jacobian="sparse", sparsity=pattern, saveat=SaveAt(steps=1))
     x1, x2 = sol.xs[-2], sol.xs[-1]
     return float(sol.ts[-1]), x2, (x2 - x1) / ic_dt, sol.stats
 

@@ -21,6 +21,7 @@ from ._x64 import entry_point
 from .checkpoint import read, sigterm_as_interrupt, to_host, write_atomic
 from .errors import InputError, NonFiniteError, StepFailure
 from .jacobian import detect_sparsity
+from .saveat import SaveAt, fixed_steps
 from .solvers import Problem, StepSolver
 from .stats import Stats
 from .step_control import StepController
@@ -50,9 +51,9 @@ class Remap(NamedTuple):
 class Solution:
     """Result of :func:`integrate`: saved times ``ts (S,)``, states ``xs (S, n)``, ``stats``.
 
-    ``params`` holds the parameter pytree at each saved time when ``save_params=True``
+    ``params`` holds the parameter pytree at each saved time when ``SaveAt(params=True)``
     (e.g. moving Lagrangian point clouds), else ``None``; ``observed`` the quantities recorded
-    by ``observe`` at every step (``{"t": (M,), key: (M, ...)}``), else ``None``.
+    by ``SaveAt(fn=...)`` at every step (``{"t": (M,), key: (M, ...)}``), else ``None``.
     """
 
     ts: np.ndarray
@@ -62,7 +63,7 @@ class Solution:
     observed: dict | None = None
 
 
-def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at, controller=None):
+def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, saveat=None, controller=None):
     """Check a run's inputs before any computation (:class:`InputError` naming the fix);
     return ``x0`` and ``scale`` as float64 arrays.  Shared with :mod:`jaxanm.sensitivity`."""
     x0 = np.asarray(x0, dtype=np.float64)
@@ -85,10 +86,8 @@ def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_a
         raise InputError("scale must be positive and finite (a characteristic magnitude per unknown)")
     if jacobian not in ("auto", "dense", "sparse"):
         raise InputError(f"jacobian must be 'auto', 'dense' or 'sparse', got {jacobian!r}")
-    if save_every is not None and save_at is not None:
-        raise InputError("give save_every or save_at, not both")
-    if save_every is not None and not (isinstance(save_every, int) and save_every >= 1):
-        raise InputError(f"save_every must be an integer >= 1, got {save_every!r}")
+    if saveat is not None and not isinstance(saveat, SaveAt):
+        raise InputError(f"saveat must be jaxanm.SaveAt(ts=..., steps=..., fn=..., params=...), got {saveat!r}")
     if controller is not None and not isinstance(controller, StepController):
         raise InputError(f"controller must be jaxanm.StepController(...) or None, got {controller!r}")
     return x0, scale
@@ -133,23 +132,10 @@ def on_device(params):
     return jax.device_put(params)
 
 
-def _save_steps(t0, dt, n_steps, save_every, save_at):
-    if save_at is None:
-        every = save_every or 1
-        steps = set(range(0, n_steps + 1, every))
-    else:
-        times = np.atleast_1d(np.asarray(save_at, dtype=np.float64))
-        steps = {int(min(max(round((s - t0) / dt), 0), n_steps)) for s in times}
-        steps.add(0)
-    steps.add(n_steps)
-    return steps
-
-
 @entry_point
 def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: float, solver,
-              scale=None, jacobian: str = "auto", sparsity=None, save_every: int | None = None,
-              save_at=None, save_params: bool = False, after_step: Callable | None = None,
-              observe: Callable | None = None, progress: bool = False, callback: Callable | None = None,
+              scale=None, jacobian: str = "auto", sparsity=None, saveat: SaveAt | None = None,
+              after_step: Callable | None = None, progress: bool = False, callback: Callable | None = None,
               max_dt_halvings: int = 4, checkpoint=None, checkpoint_every: int = 0,
               resume: bool = False, host_state: tuple | None = None,
               controller: StepController | None = None, sensitivity: SensitivityMethod | None = None) -> Solution:
@@ -175,16 +161,16 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         Tangent by dense or coloured compressed ``jacfwd`` (``"dense"``, ``"sparse"``, or ``"auto"``:
         sparse when ``sparsity`` is given or n > 400); ``sparsity``: a scipy sparse pattern, a
         callable ``params -> pattern``, or None (detected from dense probes, small problems).
-    save_every, save_at, save_params :
-        Save every k-th step, or at the steps nearest to the given times (t0 and t1 always;
-        with a ``controller`` the steps end exactly at the ``save_at`` times); ``save_params``
-        also keeps ``params`` at the saved times (e.g. moving point clouds).
+    saveat : SaveAt, optional
+        What is kept (:class:`~jaxanm.SaveAt`): the state at given times (``ts``; the steps nearest
+        to them, or with a ``controller`` steps ending exactly on them) or every k-th step
+        (``steps``), t0 and t1 always (default: every step); ``params`` also keeps the
+        parameters there (e.g. moving point clouds); ``fn(t, x, params) -> dict of arrays`` is
+        observed at t0 and after every accepted step (probe histories), returned in
+        ``Solution.observed`` as ``{"t": (M,), key: (M, ...)}`` and kept in checkpoints.
     after_step : callable ``(t_new, x_new, params) -> params | Remap(params, x)``
         Host hook after every accepted step (Lagrangian motion, stencil rebuild); :class:`Remap`
         also replaces the state.  The arrays it returns must keep their shapes and dtypes.
-    observe : callable ``(t, x, params) -> dict of arrays``
-        Quantities recorded at t0 and after every accepted step (probe histories), returned in
-        ``Solution.observed`` as ``{"t": (M,), key: (M, ...)}`` and kept in checkpoints.
     progress, callback :
         A tqdm progress bar (time, steps/s, factorisations); ``callback(t_new, x_new, stats)``
         after every accepted step.
@@ -215,13 +201,14 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     accepted state or its residual is not finite (message: step, time, a_max, residual norm);
     they (and a ``KeyboardInterrupt``) carry the run's statistics so far as ``stats``.
     """
-    x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, save_every, save_at, controller)
+    saveat = SaveAt() if saveat is None else saveat
+    x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, saveat, controller)
     _check_run_options(checkpoint, checkpoint_every, resume, host_state, after_step, controller, sensitivity)
     params = on_device(params_float64(params))
     start = time.perf_counter()
     jacobian, sparsity = _tangent_pattern(residual, x0, t0, dt, params, jacobian, sparsity)
-    options = _LoopOptions(t0=t0, t1=t1, dt=dt, save_every=save_every, save_at=save_at, save_params=save_params,
-                           after_step=after_step, observe=observe, progress=progress, callback=callback,
+    options = _LoopOptions(t0=t0, t1=t1, dt=dt, saveat=saveat, after_step=after_step, progress=progress,
+                           callback=callback,
                            max_dt_halvings=max_dt_halvings, checkpoint=checkpoint, checkpoint_every=checkpoint_every,
                            resume=resume, host_state=host_state, controller=controller, sensitivity=sensitivity)
     loop = _TimeLoop(residual, solver, x0, params, scale, jacobian, sparsity, options, start)
@@ -284,11 +271,8 @@ class _LoopOptions:
     t0: float
     t1: float
     dt: float
-    save_every: int | None
-    save_at: object
-    save_params: bool
+    saveat: SaveAt
     after_step: Callable | None
-    observe: Callable | None
     progress: bool
     callback: Callable | None
     max_dt_halvings: int
@@ -308,12 +292,12 @@ class _TimeLoop:
                  options: _LoopOptions, start: float):
         o = self.options = options
         self.solver, self.scale, self.start = solver, scale, start
-        self.n_steps = max(1, math.ceil((o.t1 - o.t0) / o.dt - 1e-9))
+        self.n_steps = fixed_steps(o.t0, o.t1, o.dt)
         self.fingerprint = {"n": x0.size, "t0": float(o.t0), "t1": float(o.t1), "dt": float(o.dt),
                             "solver": repr(solver), "controller": _describe(o.controller)}
         self.run_state = _RunState(k=0, t=float(o.t0), x=x0, params=params, stats=Stats(), ts=[float(o.t0)],
-                                   xs=[x0.copy()], ps=[to_host(params)] if o.save_params else None,
-                                   observed=_observation(o.observe, o.t0, x0, params, None))
+                                   xs=[x0.copy()], ps=[to_host(params)] if o.saveat.params else None,
+                                   observed=_observation(o.saveat.fn, o.t0, x0, params, None))
         kstar = self._resumed() if o.resume and os.path.exists(o.checkpoint) else None
         self.stats = self.run_state.stats
         self.previous_wall = self.stats.wall_time_s
@@ -324,9 +308,8 @@ class _TimeLoop:
             self.stats.resumes += 1
         if o.sensitivity is not None:
             o.sensitivity.start(self.problem, o.t0, x0, params)
-        self.saves = _save_steps(o.t0, o.dt, self.n_steps, o.save_every, o.save_at)
-        self.save_times = (sorted({float(v) for v in np.atleast_1d(o.save_at) if o.t0 < v < o.t1})
-                           if o.save_at is not None else [])
+        self.saves = o.saveat.fixed(o.t0, o.t1, o.dt)
+        self.save_times = sorted({v for v in o.saveat.ts or () if o.t0 < v < o.t1})  # a controller ends on them
         self.bar = _progress_bar(None if o.controller else self.n_steps, o.t1 - o.t0, o.progress,
                                  initial=self.run_state.k)
         self.guard = None
@@ -362,7 +345,7 @@ class _TimeLoop:
             stats.close(self.previous_wall + time.perf_counter() - self.start)
         if o.checkpoint is not None:
             self._save_checkpoint()
-        observed = None if o.observe is None else {key: np.asarray(v) for key, v in run.observed.items()}
+        observed = None if o.saveat.fn is None else {key: np.asarray(v) for key, v in run.observed.items()}
         return Solution(ts=np.asarray(run.ts), xs=np.asarray(run.xs), stats=stats, params=run.ps, observed=observed)
 
     def _steps(self) -> None:
@@ -377,8 +360,7 @@ class _TimeLoop:
             while run.t < o.t1:
                 k = run.k + 1
                 t_new, x_new, r_norm = self._controlled_step(k)
-                saved = (t_new == o.t1 or t_new in self.save_times
-                         or (o.save_at is None and k % (o.save_every or 1) == 0))
+                saved = o.saveat.controlled(k, t_new, o.t1)
                 self._record(k, t_new, x_new, r_norm, saved=saved)
 
     def _advance(self, x, t, h, step, depth):
@@ -493,7 +475,7 @@ class _TimeLoop:
             params_new, x_new = params_new.params, _remapped_state(params_new.x, x_new)
         if params_new is not run.params:
             params_new = on_device(params_new)
-        run.advance(k, t_new, x_new, params_new, saved=saved, observe=o.observe)
+        run.advance(k, t_new, x_new, params_new, saved=saved, observe=o.saveat.fn)
         if o.sensitivity is not None:
             o.sensitivity.record(t_new, x_new, run.params)
         self.guard.release()

@@ -62,6 +62,7 @@ from jax.flatten_util import ravel_pytree
 from ._x64 import entry_point
 from .errors import InputError, StepFailure
 from .integrate import SensitivityMethod, check_run_inputs, integrate, params_float64
+from .saveat import SaveAt
 from .stats import Stats
 
 _FLOOR = 1e3  # a correction that stops shrinking below _FLOOR * polish_tol is at the round-off floor
@@ -273,11 +274,11 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
         with a fresh Jacobian.
     """
     start = time.perf_counter()
-    check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, None, None)
+    check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian)
     forward = ForwardSensitivity(residual, params, theta, observe, bind=bind, tangents=tangents,
                                  polish_tol=polish_tol, max_polish=max_polish, max_refine=max_refine)
     solution = integrate(residual, x0, forward.bound_params, t0=t0, t1=t1, dt=dt, solver=solver, scale=scale,
-                         jacobian=jacobian, sparsity=sparsity, save_at=[t1], max_dt_halvings=max_dt_halvings,
+                         jacobian=jacobian, sparsity=sparsity, saveat=SaveAt(ts=[t1]), max_dt_halvings=max_dt_halvings,
                          sensitivity=forward)
     return forward.result(solution.stats, time.perf_counter() - start)
 

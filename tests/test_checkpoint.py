@@ -16,8 +16,8 @@ from model_problems import heat_1d
 def _integrate(tmp_path, solver, **kw):
     residual, x0, params = heat_1d(12)
     observe = lambda t, x, p: {"mid": x[6]}  # noqa: E731  (a probe history)
-    return jaxanm.integrate(residual, x0, params, t0=0.0, t1=0.6, dt=1e-2, solver=solver, save_every=7,
-                            observe=observe, checkpoint=tmp_path / "run.ckpt", **kw)
+    return jaxanm.integrate(residual, x0, params, t0=0.0, t1=0.6, dt=1e-2, solver=solver,
+                            saveat=jaxanm.SaveAt(steps=7, fn=observe), checkpoint=tmp_path / "run.ckpt", **kw)
 
 
 def _interrupt_at(step, how):

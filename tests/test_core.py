@@ -252,7 +252,7 @@ def test_float64_end_to_end_without_global_flag():
         ({"solver": "anm"}, "solver must be"),
         ({"scale": -1.0}, "scale must be positive"),
         ({"jacobian": "lu"}, "jacobian must be"),
-        ({"save_every": 0}, "save_every"),
+        ({"saveat": [0.05]}, "saveat must be"),
     ],
 )
 def test_bad_input_is_rejected_before_computing(kwargs, match):
@@ -273,9 +273,16 @@ def test_bad_solver_options_are_rejected():
         jaxanm.integrate(lambda x, *a: x, np.array([np.nan]), None, t0=0, t1=1, dt=0.1, solver=jaxanm.ANM())
 
 
+def test_bad_saveat_is_rejected():
+    with pytest.raises(jaxanm.InputError, match="steps"):
+        jaxanm.SaveAt(steps=0)
+    with pytest.raises(jaxanm.InputError, match="not both"):
+        jaxanm.SaveAt(ts=[0.1], steps=2)
+
+
 def test_save_at_and_params_history():
     residual, x0, params = heat_1d(8)
-    sol = _run((residual, x0, params), jaxanm.ANM(), t1=0.1, save_at=[0.03, 0.05], save_params=True)
+    sol = _run((residual, x0, params), jaxanm.ANM(), t1=0.1, saveat=jaxanm.SaveAt(ts=[0.03, 0.05], params=True))
     np.testing.assert_allclose(sol.ts, [0.0, 0.03, 0.05, 0.1])
     assert len(sol.params) == 4 and sol.xs.shape == (4, 8)
 
@@ -298,7 +305,8 @@ def test_after_step_remap_changes_the_discretisation_without_changing_the_soluti
         return after_step
 
     s0 = np.ones_like(x0)
-    kw = dict(t0=0.0, t1=0.3, dt=1e-2, solver=jaxanm.Newton(tol=1e-12), save_params=True)
+    kw = dict(t0=0.0, t1=0.3, dt=1e-2, solver=jaxanm.Newton(tol=1e-12),
+              saveat=jaxanm.SaveAt(params=True))
     plain = jaxanm.integrate(residual0, x0, params0, **kw)
     remapped = jaxanm.integrate(residual, x0, {"s": s0, "s_old": s0}, after_step=rebasis(True), **kw)
     ignored = jaxanm.integrate(residual, x0, {"s": s0, "s_old": s0}, after_step=rebasis(False), **kw)

@@ -137,7 +137,7 @@ def _ie_fields(model, params, x0, t_end, dt):
     """Field values at the points at t_end from implicit Euler at fixed dt (modified Newton, tight)."""
     sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=t_end, dt=dt,
                            solver=jaxanm.ModifiedNewton(tol=1e-11), scale=model.scale(), jacobian="sparse",
-                           sparsity=model.sparsity, save_at=[t_end])
+                           sparsity=model.sparsity, saveat=jaxanm.SaveAt(ts=[t_end]))
     return sol.xs[-1]
 
 

@@ -54,7 +54,7 @@ def test_accepted_steps_meet_the_tolerance_and_grow_as_the_solution_decays():
     rtol, atol = 0.0, 1e-6
     ctl = jaxanm.StepController(rtol=rtol, atol=atol)
     sol = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, t0=0.0, t1=2.0, dt=1e-3, controller=ctl,
-                           solver=jaxanm.Newton(tol=1e-12), save_every=1)
+                           solver=jaxanm.Newton(tol=1e-12), saveat=jaxanm.SaveAt(steps=1))
     xs, ts, hs = sol.xs[:, 0], sol.ts, np.array(sol.stats.step_sizes)
     assert len(hs) == len(ts) - 1 and np.allclose(np.diff(ts), hs, rtol=0, atol=1e-15)
     for n in range(1, len(hs)):  # the first step is taken unchecked (no history)
@@ -79,8 +79,7 @@ def test_tighter_tolerance_gives_smaller_global_error_and_more_steps():
 
 
 def test_save_times_are_hit_exactly_and_a_too_large_step_is_refused():
-    save_at = [0.3, 0.7]
-    sol = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, t0=0.0, t1=1.0, dt=0.01, save_at=save_at,
+    sol = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, t0=0.0, t1=1.0, dt=0.01, saveat=jaxanm.SaveAt(ts=[0.3, 0.7]),
                            controller=jaxanm.StepController(rtol=0.0, atol=1e-6), solver=jaxanm.Newton(tol=1e-12))
     assert list(sol.ts) == [0.0, 0.3, 0.7, 1.0]
     # first step unchecked at 0.01 (LE ~ 4.5e-4 > atol): the second, proposed equal, is refused
@@ -88,7 +87,7 @@ def test_save_times_are_hit_exactly_and_a_too_large_step_is_refused():
 
 
 def test_resume_with_a_controller_is_bit_identical(tmp_path):
-    kw = dict(t0=0.0, t1=1.0, dt=1e-3, solver=jaxanm.ANM(order=5, tol=1e-8), save_every=1,
+    kw = dict(t0=0.0, t1=1.0, dt=1e-3, solver=jaxanm.ANM(order=5, tol=1e-8), saveat=jaxanm.SaveAt(steps=1),
               controller=jaxanm.StepController(rtol=1e-4, atol=1e-6))
     full = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, **kw)
     path = tmp_path / "run.ckpt"
@@ -156,7 +155,7 @@ def test_an_error_that_does_not_shrink_with_the_step_fails_by_name_or_is_accepte
     """Across the jump x_{n+1} - x_pred = 1 whatever h, so no step passes the error test: with
     dt_min = 0 the run stops with a StepFailure that says so; with dt_min > 0 the step of
     dt_min is accepted and the run goes on."""
-    kw = dict(t0=0.0, t1=1.0, dt=0.01, solver=jaxanm.Newton(tol=1e-12), save_every=1)
+    kw = dict(t0=0.0, t1=1.0, dt=0.01, solver=jaxanm.Newton(tol=1e-12), saveat=jaxanm.SaveAt(steps=1))
     with pytest.raises(jaxanm.StepFailure, match="local error test still fails"):
         jaxanm.integrate(_jump, np.zeros(1), None, controller=jaxanm.StepController(rtol=0, atol=1e-6), **kw)
     sol = jaxanm.integrate(_jump, np.zeros(1), None, controller=jaxanm.StepController(rtol=0, atol=1e-6, dt_min=1e-3),

@@ -119,17 +119,16 @@ def _nearest_spacing(points: np.ndarray) -> np.ndarray:
 class _Recorder:
     """Host-side state of a run: moving cloud, material points, probes, saved fields and sections."""
 
-    def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_steps: set,
-                 save_times: set | None = None, initial: np.ndarray | None = None,
-                 start: StartReport | None = None):
+    def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_times: frozenset,
+                 initial: np.ndarray | None = None, start: StartReport | None = None):
+        # save_times: the end times of the saved steps, from the run's jaxanm.SaveAt (SaveAt.times);
         # initial: field values (N, len(fields)) at the points at t = 0 (default: the model's rest
         # state); start: the StartReport of a quasi-static start
-        # fixed steps save at step numbers; adaptive ones end exactly on the save times
-        self.scene, self.model, self.save_steps, self.save_times = scene, model, save_steps, save_times
+        self.scene, self.model, self.save_times = scene, model, save_times
         cloud = model.cloud
         self.points = cloud.points.copy()
         self.width = stencils.index.shape[1]
-        self.step, self.t = 0, 0.0
+        self.t = 0.0
         self.probe_index = probe_points(scene, cloud)
         self.section_points = {s.name: np.linspace(s.start, s.end, s.samples) for s in scene.sections}
         self.probes = {"t": [], **{name: {k: [] for k in "xyuvT"} for name in self.probe_index}}
@@ -250,12 +249,11 @@ class _Recorder:
         """The :func:`jaxanm.integrate` hook: record, then move the cloud (Lagrangian) or tracers."""
         model, scene = self.model, self.scene
         dt = float(t_new) - self.t
-        self.step += 1
         self.t = float(t_new)
         x = np.asarray(x)
         values = model.values(x, params["st"])
         full = model.full_values(values)
-        save = self.step in self.save_steps if self.save_times is None else self.t in self.save_times
+        save = self.t in self.save_times
         if save:
             self._save_sections(x)
         if self.tracers is not None:
@@ -349,11 +347,6 @@ def step_controller(scene: Scene, model: Model):
         error_map=lambda x, p: model.values(x, p["st"])[:, measured].T.ravel(), error_scale=scale)
 
 
-def _save_steps(scene: Scene, n_steps: int) -> set:
-    dt = scene.time.dt
-    return {min(max(round(t / dt), 0), n_steps) for t in scene.time.save_times if t > 0}
-
-
 _HOST_INPUTS = ("scene", "model")
 """Recorder attributes rebuilt from the scene on resume (everything else is checkpointed)."""
 
@@ -441,11 +434,10 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         x0, start = quasi_static_state(scene, model, stencils)
         initial = model.values(x0, stencils)
     tm = scene.time
-    n_steps = max(1, math.ceil(tm.t_end / tm.dt - 1e-9))
     controller = step_controller(scene, model)
-    save_times = [t for t in tm.save_times if t > 0]
-    recorder = _Recorder(scene, model, stencils, x0, _save_steps(scene, n_steps),
-                         None if controller is None else set(save_times), initial=initial, start=start)
+    saveat = jaxanm.SaveAt(ts=[t for t in tm.save_times if t > 0])
+    recorder = _Recorder(scene, model, stencils, x0, saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None),
+                         initial=initial, start=start)
     latest = {"stats": jaxanm.Stats()}
 
     def step_done(t, x, stats):
@@ -459,7 +451,7 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     try:
         sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver,
                                scale=model.scale(), jacobian="sparse", sparsity=model.sparsity,
-                               save_at=save_times if controller else [tm.t_end], after_step=recorder.after_step,
+                               saveat=saveat, after_step=recorder.after_step,
                                progress=progress, callback=step_done, checkpoint=checkpoint,
                                checkpoint_every=checkpoint_every, resume=resume, host_state=host,
                                controller=controller)
