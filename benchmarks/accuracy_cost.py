@@ -130,7 +130,7 @@ def build_problem(name: str, cfg: dict) -> dict:
         return {"residual": residual, "x0": x0, "params": params, "t0": 0.0, "t1": cfg["t1"],
                 "dt": cfg["dt"], "scale": None, "sparsity": None, "jacobian": "sparse",
                 "values": lambda x: x, "value_scale": None}
-    from jaxanm.fsw.model import discretise
+    from jaxanm.fsw.discretisation import discretise
     from jaxanm.fsw.scene import load_scene
     from jaxanm.mls import value_matrix
 

@@ -40,7 +40,8 @@ import numpy as np
 
 import jaxanm
 from jaxanm.fsw.geometry import PLATE, build_cloud, build_stencils
-from jaxanm.fsw.model import discretise, make_model, mu_reference
+from jaxanm.fsw.discretisation import discretise, make_model
+from jaxanm.fsw.physics import mu_reference
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run as fsw_run
 

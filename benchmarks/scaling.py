@@ -46,7 +46,7 @@ def measure(dr: float, repeats: int, order: int = 7) -> dict:
     import jax.numpy as jnp
 
     import jaxanm
-    from jaxanm.fsw.model import discretise
+    from jaxanm.fsw.discretisation import discretise
     from jaxanm.fsw.scene import load_scene
     from jaxanm.solvers import _series_function
 

@@ -37,7 +37,7 @@ import numpy as np
 import jaxanm
 from jaxanm import checkpoint as ckpt
 from jaxanm import pade
-from jaxanm.fsw.model import discretise
+from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run
 from jaxanm.linalg import Factorization

@@ -29,7 +29,7 @@ from fsw_scene import couette_power, unknowns  # noqa: E402
 
 from jaxanm.fsw import load_scene, run  # noqa: E402
 from jaxanm.fsw.energy import dissipated_power, stored_heat  # noqa: E402
-from jaxanm.fsw.model import mu_reference  # noqa: E402
+from jaxanm.fsw.physics import mu_reference  # noqa: E402
 
 LADDER = (
     ("viscous", ("viscous",)),

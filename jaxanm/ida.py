@@ -11,7 +11,7 @@ alone, then for any fixed ``h0 > 0``::
 is an exact DAE residual ``F(t, y, y') = D(h0) G(t, y, y')``: since ``L`` is linear,
 ``(L y - L (y - h0 y')) / h0 = L y'``, and ``D(h0)`` is a constant positive diagonal row
 scaling, which changes neither the solution nor IDA's Newton test (made on the corrections of
-``y``, not on the residual).  The FSW residual (:mod:`jaxanm.fsw.model`) is of this form on
+``y``, not on the residual).  The FSW residual (:mod:`jaxanm.fsw.physics`) is of this form on
 fixed points (``tracers`` or no motion): ``x_old`` enters through ``_old_value`` in
 ``dT/dt`` and, with ``inertia``, ``dV/dt``, both MLS values (linear in the nodal parameters),
 and ``dt`` further enters only the row scalings ``s_plate``, ``s_tool``, ``s_edge`` and the

@@ -14,7 +14,7 @@ import pytest
 
 from jaxanm.fsw import load_scene, run
 from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, build_stencils
-from jaxanm.fsw.model import discretise
+from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.scene import SceneError
 from jaxanm.fsw.simulate import _Recorder
 

@@ -16,7 +16,8 @@ import pytest
 import jaxanm
 from jaxanm.fsw import geometry
 from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud, build_stencils
-from jaxanm.fsw.model import discretise, make_model, mu_reference
+from jaxanm.fsw.discretisation import discretise, make_model
+from jaxanm.fsw.physics import mu_reference
 from jaxanm.fsw.scene import (EFFECTS, Geometry, Material, Scene, SceneError, Time, load_scene,
                               override_keys, shipped_scenes)
 

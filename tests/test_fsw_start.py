@@ -14,7 +14,7 @@ import pytest
 import jaxanm
 from jaxanm.fsw import axisymmetric, simulate
 from jaxanm.fsw.geometry import PLATE, RING
-from jaxanm.fsw.model import discretise
+from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.scene import SceneError, load_scene
 from jaxanm.fsw.start import quasi_static_state
 

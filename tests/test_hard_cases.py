@@ -104,7 +104,7 @@ def test_epsbar_to_zero():
     assert exc.stats.newton_iterations == 5 * (needed - 1) and capped.time_steps == 0
 
     # the premise: the quasi-static residual does not depend on dt, t or x_old
-    from jaxanm.fsw.model import discretise
+    from jaxanm.fsw.discretisation import discretise
     from jaxanm.fsw.scene import load_scene
 
     scene = load_scene("fsw_small").with_overrides({**hc.TINY, **hc.EPS0_ZERO})

@@ -11,7 +11,7 @@ import jaxanm
 from jaxanm import mls
 from jaxanm.fsw import discretise, load_scene
 from jaxanm.fsw.geometry import PLATE, _apart, build_stencils, neighbour_list
-from jaxanm.fsw.model import Refit
+from jaxanm.fsw.discretisation import Refit
 from jaxanm.fsw.simulate import _Recorder, _rotate
 
 

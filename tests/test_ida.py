@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import jaxanm
-from jaxanm.fsw.model import discretise
+from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.scene import load_scene
 from jaxanm.ida import IDAFailure, dae_residual, integrate_ida
 

@@ -80,7 +80,7 @@ def viscous_residual(x, u_old, T_old, prm):
     """Implicit-Euler step residual of problem 1, ``x = [u, T]`` of shape ``(2, N)``.
 
     Same discrete problem as :func:`handcoded_series.viscous_flow_series` (see there),
-    written the way ``jaxanm.fsw.model`` writes it: ``epsbar^(n-1)`` as
+    written the way ``jaxanm.fsw.physics`` writes it: ``epsbar^(n-1)`` as
     ``(d^2 + eps0^2)^((n-1)/2)``, one ``pow`` instead of ``sqrt`` then ``pow`` (jet's
     ``sqrt`` *is* ``x ** 0.5``, the same rule), a route independent of the reference's
     sqrt-then-power.  ``d ** 2`` must stay an integer power: jet expands a float power

@@ -2,13 +2,16 @@
 
 - :mod:`~jaxanm.fsw.scene`: typed, validated scenes (Python, TOML, ``--set`` overrides);
 - :mod:`~jaxanm.fsw.geometry`: point cloud and MLS stencils split at the tool edge;
-- :mod:`~jaxanm.fsw.model`: the strong-form MLS residual of the effects a scene lists;
+- :mod:`~jaxanm.fsw.physics`: the strong-form MLS residual rows of the effects a scene lists and
+  the constitutive laws;
+- :mod:`~jaxanm.fsw.discretisation`: unknown layout, residual parameters, initial state,
+  sparsity and refit (:class:`Model`, :func:`discretise`);
 - :mod:`~jaxanm.fsw.simulate`: :func:`run` a scene to an :class:`FSWResult`;
 - :mod:`~jaxanm.fsw.calibration`: gradients w.r.t. K, A, n and least-squares calibration.
 """
 
 from . import calibration
-from .model import Discretisation, Model, discretise, make_model
+from .discretisation import Discretisation, Model, discretise, make_model
 from .scene import EFFECTS, Scene, SceneError, load_scene, override_keys, shipped_scenes
 from .simulate import FSWResult, run
 

@@ -2,7 +2,7 @@
 
 Around a tool turning rigidly at ``omega`` the fields of a scene's physics are axisymmetric:
 the plate flows on circles, ``V = v(r) e_theta``, and ``T = T(r)``.  Then (SI units, per unit
-thickness, :mod:`jaxanm.fsw.model` for the 2-D equations):
+thickness, :mod:`jaxanm.fsw.physics` for the 2-D equations):
 
 - momentum: ``d(r^2 tau)/dr = 0`` (quasi-static; inertia is left out, see below), so the
   shear stress is ``tau(r) = C / r^2`` with ``C`` fixed by the kinematics: v = omega R1 at the
@@ -16,7 +16,7 @@ thickness, :mod:`jaxanm.fsw.model` for the 2-D equations):
   ``rho_t Cp_t dT/dt = (1/r) d/dr(r k_t dT/dr)`` in the tool, T and heat flux continuous at R1,
   ``-k dT/dr = h (T - Ta)`` at R2.
 
-The scene's effects select the terms as :mod:`jaxanm.fsw.model` does: without ``softening``
+The scene's effects select the terms as :mod:`jaxanm.fsw.physics` does: without ``softening``
 mu uses T0; without ``dissipation`` q = 0; without ``tool_conduction`` the plate edge R1 is
 insulated and the tool stays at T0; without ``robin`` the edge R2 is insulated; without
 ``conduction`` T = T0 (isothermal Couette flow); without ``viscous`` there is no flow.  The

@@ -20,7 +20,7 @@ What is (not) differentiated:
   gradient: use the same physics on fixed points (effect ``tracers`` instead of
   ``lagrangian``, or neither).
 - The viscosity scale ``mu_ref = K T0^A omega^(n-1) / 3`` only scales the momentum rows
-  (:mod:`jaxanm.fsw.model`); it stays at the scene's value, so theta changes the physics, not
+  (:mod:`jaxanm.fsw.physics`); it stays at the scene's value, so theta changes the physics, not
   the row scaling.  Row scaling does not change the discrete solution, hence not its
   derivatives.
 - ``T0`` and ``omega`` set the initial state and are not in :data:`PARAMETERS`; calibrate
@@ -44,7 +44,8 @@ from .. import sensitivity
 from .._x64 import entry_point
 from ..errors import InputError, StepFailure
 from .geometry import evaluate_stencils
-from .model import complete_fields, discretise
+from .discretisation import discretise
+from .physics import complete_fields
 from .scene import Scene
 from .simulate import probe_points
 
@@ -53,7 +54,7 @@ __all__ = ["PARAMETERS", "FitResult", "fit", "gauss_newton", "material_theta", "
 
 PARAMETERS = ("logK", "K", "A", "n", "eps0", "rho", "Cp", "k", "beta", "rho_t", "Cp_t", "k_t", "h", "Ta", "lam")
 """Names ``theta`` may hold: ``logK`` (= ln K) or ``K``, and constants of ``params["c"]``
-(:data:`jaxanm.fsw.model.CONSTANTS`) other than the initial-state data (``T0``, ``omega``),
+(:data:`jaxanm.fsw.physics.CONSTANTS`) other than the initial-state data (``T0``, ``omega``),
 the discretisation (``dr``) and the scales (``U``, ``Ts``, ``mu_ref``)."""
 
 

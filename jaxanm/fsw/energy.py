@@ -22,7 +22,8 @@ import numpy as np
 
 from .. import mls
 from .geometry import build_cloud, build_stencils, evaluate_stencils
-from .model import complete_fields, make_model, viscosity
+from .discretisation import make_model
+from .physics import complete_fields, viscosity
 
 __all__ = ["annulus_quadrature", "dissipated_power", "stored_heat"]
 
@@ -47,7 +48,7 @@ def annulus_quadrature(r_in: float, r_out: float, cells: int = 60, angles: int =
 
 def _fields(result, s: int, targets: np.ndarray) -> dict:
     """u, v, T and the gradients of the scene's fields at ``targets`` from the values of saved
-    step ``s`` (the fields the scene lacks filled, :func:`~jaxanm.fsw.model.complete_fields`)."""
+    step ``s`` (the fields the scene lacks filled, :func:`~jaxanm.fsw.physics.complete_fields`)."""
     scene = result.scene
     cloud = build_cloud(scene.geometry)
     model = make_model(scene, cloud)
@@ -80,7 +81,7 @@ def dissipated_power(result, s: int = -1) -> float:
     """``int 3 mu epsbar^2 dA`` (W/m) over the plate of the velocity field at saved step ``s``.
 
     ``mu = K T^A (epsbar^2 + eps0^2)^((n-1)/2) / 3`` with ``T = T0`` unless the scene has
-    ``softening`` (the model's law, :func:`~jaxanm.fsw.model.viscosity`), ``epsbar^2 = 2/3
+    ``softening`` (the model's law, :func:`~jaxanm.fsw.physics.viscosity`), ``epsbar^2 = 2/3
     epsdot : epsdot``.
     """
     scene = result.scene

@@ -36,7 +36,7 @@ from .. import mls
 from .._x64 import entry_point
 from .scene import Geometry
 
-__all__ = ["Cloud", "build_cloud", "build_stencils", "edge_spacing", "evaluate_stencils", "neighbour_list", "spacing",
+__all__ = ["Cloud", "build_cloud", "build_stencils", "edge_spacing", "evaluate_stencils", "neighbour_list", "rigid", "spacing",
            "TOOL", "TOOL_EDGE", "PLATE_EDGE", "PLATE", "RING"]
 
 TOOL, TOOL_EDGE, PLATE_EDGE, PLATE, RING = range(5)
@@ -165,6 +165,11 @@ def _graded_interior(g: Geometry) -> tuple[np.ndarray, np.ndarray]:
     tool = [np.zeros((1, 2))] + [_ring(r, d) for r, d in zip(r_t[-2:0:-1], d_t[-2:0:-1])]
     plate = [_ring(r, d) for r, d in zip(r_p[1:-1], d_p[1:-1])]
     return np.concatenate(tool), np.concatenate(plate) if plate else np.zeros((0, 2))
+
+
+def rigid(kind: np.ndarray) -> np.ndarray:
+    """Points that turn with the tool: the tool and both sides of its edge (sticking)."""
+    return (kind == TOOL) | (kind == TOOL_EDGE) | (kind == PLATE_EDGE)
 
 
 def build_cloud(g: Geometry) -> Cloud:

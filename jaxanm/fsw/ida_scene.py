@@ -29,7 +29,7 @@ import numpy as np
 import jaxanm
 
 from .geometry import evaluate_stencils
-from .model import discretise
+from .discretisation import discretise
 from .scene import Scene
 from .simulate import FSWResult, probe_points
 

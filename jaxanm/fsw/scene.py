@@ -331,7 +331,7 @@ class Thermal(_Section):
     :data:`EDGE_ROWS`.  ``"flux"`` collocates the flux condition alone there (the heat
     dissipated within half a spacing of the tool edge then never enters the discrete balance);
     ``"half_cell"`` collocates the heat balance of the edge cell, flux condition folded in
-    (:mod:`jaxanm.fsw.model`, docs/notes/energy_balance.md).
+    (:mod:`jaxanm.fsw.physics`, docs/notes/energy_balance.md).
 
     ``edge_source`` (``"half_cell"`` only): how that balance counts the dissipation in the plate
     half cell ``[R1, R1 + dr/2]``, one of :data:`EDGE_SOURCES`.  ``"point"`` takes ``q(R1) dr/2``;

@@ -1,7 +1,7 @@
 """Run an FSW scene: cloud, model, time integration, Lagrangian motion, probes and sections.
 
 :func:`run` builds the point cloud and MLS stencils of a :class:`~jaxanm.fsw.scene.Scene`,
-its :class:`~jaxanm.fsw.model.Model`, and calls :func:`jaxanm.integrate` with a host hook
+its :class:`~jaxanm.fsw.discretisation.Model`, and calls :func:`jaxanm.integrate` with a host hook
 after every accepted step that
 
 - evaluates the fields at the points (MLS is not interpolating: values, not nodal parameters);
@@ -33,8 +33,8 @@ from scipy.spatial import cKDTree
 
 import jaxanm
 
-from .geometry import PLATE, build_stencils, evaluate_stencils, neighbour_list
-from .model import Model, Refit, discretise, rigid
+from .discretisation import Model, Refit, discretise
+from .geometry import PLATE, build_stencils, evaluate_stencils, neighbour_list, rigid
 from .scene import Scene
 from .start import StartReport, quasi_static_state
 

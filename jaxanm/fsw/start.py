@@ -1,6 +1,6 @@
 """The flow at t = 0: the quasi-static velocity the initial temperature holds, not rest.
 
-The momentum rows of :mod:`jaxanm.fsw.model` are quasi-static: their inertia term weighs
+The momentum rows of :mod:`jaxanm.fsw.physics` are quasi-static: their inertia term weighs
 ``rho dr^2 / (mu dt)`` against the viscous ones, below 1e-5 at the FSW scenes' dt, so the
 plate spins up within ``rho (R2 - R1)^2 / mu ~ 1e-8 s`` (:mod:`jaxanm.fsw.axisymmetric`) and
 the velocity a step solves for is the stationary flow at the step's temperature.  Started from
@@ -33,7 +33,7 @@ from ..errors import StepFailure
 from ..linalg import factorize
 from ..solvers import Problem, _relative_change
 from ..stats import Stats
-from .model import Model, make_model
+from .discretisation import Model, make_model
 
 __all__ = ["StartReport", "quasi_static_state"]
 
@@ -108,7 +108,7 @@ def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_ite
     """Initial unknowns of ``model`` with the quasi-static flow at T0; returns ``(x0, StartReport)``.
 
     The velocity is the root of the stationary momentum rows at T = T0 on the model's cloud
-    and ``stencils`` (:func:`jaxanm.fsw.model.make_model` of the scene with ``viscous`` alone,
+    and ``stencils`` (:func:`jaxanm.fsw.discretisation.make_model` of the scene with ``viscous`` alone,
     whose rows are the scene's without the inertia term), from rest, to ``tol`` in the
     scaled change of a full Newton step (1e-8: Newton converges quadratically there, so the
     state is then a root to round-off, and the first step only adds the change of its own
