@@ -36,7 +36,7 @@ import numpy as np
 import jaxanm
 from jaxanm import mls
 from jaxanm.fsw import discretise, load_scene
-from jaxanm.fsw import simulate as sim
+from jaxanm.fsw import lagrangian as sim
 from jaxanm.fsw.geometry import _apart
 
 DOCS = pathlib.Path(__file__).resolve().parent.parent / "docs"

@@ -16,7 +16,7 @@ from jaxanm.fsw import load_scene, run
 from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, build_stencils
 from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.scene import SceneError
-from jaxanm.fsw.simulate import _Recorder
+from jaxanm.fsw.lagrangian import _Recorder
 
 
 @pytest.mark.parametrize("value", ["1.0", "-0.1", "1.5"])

@@ -12,7 +12,7 @@ from jaxanm import mls
 from jaxanm.fsw import discretise, load_scene
 from jaxanm.fsw.geometry import PLATE, _apart, build_stencils, neighbour_list
 from jaxanm.fsw.discretisation import Refit
-from jaxanm.fsw.simulate import _Recorder, _rotate
+from jaxanm.fsw.lagrangian import _Recorder, _rotate
 
 
 def _scene():

@@ -20,7 +20,7 @@ import pytest
 from matplotlib.tri import Triangulation
 
 from jaxanm.fsw import figures, output
-from jaxanm.fsw.simulate import FSWResult
+from jaxanm.fsw.record import FSWResult
 from jaxanm.stats import Stats
 
 R1, R2, OMEGA, DR = 1.5e-3, 6e-3, 20.0, 7.5e-4

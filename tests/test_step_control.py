@@ -134,7 +134,8 @@ def test_fsw_scene_with_adaptive_steps():
     """time.adaptive on the Lagrangian fsw_small: steps end exactly on the scene's save times,
     stay within the point-motion bound, and the probes are recorded at every accepted step."""
     from jaxanm.fsw.scene import load_scene
-    from jaxanm.fsw.simulate import motion_dt_max, run
+    from jaxanm.fsw.lagrangian import motion_dt_max
+    from jaxanm.fsw.simulate import run
 
     scene = load_scene("fsw_small").with_overrides({"time.adaptive": "true", "time.atol": "1e-5", "time.t_end": "0.003",
                                                     "time.save": "0.001", "time.dt": "1e-4"})

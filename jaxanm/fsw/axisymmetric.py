@@ -483,7 +483,7 @@ def shear_band_width(scene: Scene) -> float:
 def rise_error(result, steps_per_ms: int = 1) -> dict | None:
     """The temperature rise of a run against this module's solution, at the last saved time.
 
-    ``result`` is a :class:`jaxanm.fsw.simulate.FSWResult` (``scene``, ``t``, ``points``, ``T``)
+    ``result`` is a :class:`jaxanm.fsw.record.FSWResult` (``scene``, ``t``, ``points``, ``T``)
     of a scene with ``conduction`` (None otherwise, or at t = 0, or when the continuum's rise
     is zero).  The reference is :func:`solve` on its default mesh with ``refine=1`` and about
     ``steps_per_ms`` steps a millisecond (at least 10 in all): within 3e-3 K of the converged

@@ -47,7 +47,7 @@ from .geometry import evaluate_stencils
 from .discretisation import discretise
 from .physics import complete_fields
 from .scene import Scene
-from .simulate import probe_points
+from .record import probe_points
 
 __all__ = ["PARAMETERS", "FitResult", "fit", "gauss_newton", "material_theta", "simulate", "theta_to_material",
            "value_and_grad", "weighted_residuals"]

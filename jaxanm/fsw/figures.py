@@ -1,6 +1,6 @@
 """The paper's figures (Figs 2, 3, 5-11) drawn from an FSW result.
 
-Each builder takes an :class:`~jaxanm.fsw.simulate.FSWResult` (or any object with its
+Each builder takes an :class:`~jaxanm.fsw.record.FSWResult` (or any object with its
 fields) and returns a :class:`matplotlib.figure.Figure` attached to an Agg canvas (no screen,
 no pyplot global state), or raises :class:`FigureSkipped` when the data it needs is absent
 (no temperature in an isothermal scene, a run that ended before the requested time, too few

@@ -3,7 +3,7 @@
 :func:`run_ida` integrates a fixed-point scene's residual (``tracers`` or no motion) with
 SUNDIALS IDA (:func:`jaxanm.ida.integrate_ida`: variable-order BDF, the same residual and
 coloured sparse Jacobian as the implicit-Euler solvers) and returns an
-:class:`~jaxanm.fsw.simulate.FSWResult`, so that ``jaxanm.fsw.output.write_outputs`` writes the
+:class:`~jaxanm.fsw.record.FSWResult`, so that ``jaxanm.fsw.output.write_outputs`` writes the
 same files as ``jaxanm run --out`` and errors are measured by the same
 :func:`jaxanm.fsw.compare.differences`.  What differs from :func:`jaxanm.fsw.simulate.run`:
 
@@ -11,7 +11,7 @@ same files as ``jaxanm run --out`` and errors are measured by the same
   a step exactly (no interpolation); the probe history holds t = 0 and those times only, not
   every internal step.  Compare it with other runs at those times (``time.save``).
 - The registration points are the plate points nearest the scene's probe positions, as in
-  :func:`~jaxanm.fsw.simulate.run` on fixed points (:func:`~jaxanm.fsw.simulate.probe_points`).
+  :func:`~jaxanm.fsw.simulate.run` on fixed points (:func:`~jaxanm.fsw.record.probe_points`).
 - No tracers: advecting them needs the flow between the outputs (``tracers`` is None; the
   mixing figure then shows the fixed points, i.e. no mixing: read it from an implicit-Euler run).
 - ``stats`` is a :class:`jaxanm.Stats`: ``time_steps`` IDA's internal steps,
@@ -31,7 +31,7 @@ import jaxanm
 from .geometry import evaluate_stencils
 from .discretisation import discretise
 from .scene import Scene
-from .simulate import FSWResult, probe_points
+from .record import FSWResult, probe_points
 
 __all__ = ["IDA_DEFAULTS", "run_ida"]
 

@@ -255,7 +255,7 @@ def write_vtu(result, out_dir: str | os.PathLike) -> list[Path]:
 def write_outputs(result, out_dir: str | os.PathLike, solver_settings=None) -> list[Path]:
     """Write every output of an FSW run into ``out_dir`` (created if needed); return the paths.
 
-    ``result`` is a :class:`jaxanm.fsw.simulate.FSWResult` (or any object with its fields);
+    ``result`` is a :class:`jaxanm.fsw.record.FSWResult` (or any object with its fields);
     ``solver_settings`` describes the solver for ``summary.json`` (``None``: ``result.solver``).
     Figures whose data is absent (no temperature, run too short) are skipped with a logged
     note; see :func:`write_figures`.

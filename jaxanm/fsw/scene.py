@@ -239,7 +239,7 @@ class Geometry(_Section):
     ``rezone`` (used by the ``lagrangian`` effect only; 0 = never): the plate points are
     re-seeded at their initial layout, and the state refitted there, once some plate point's
     nearest neighbour comes closer than ``rezone`` times its distance at the last seeding
-    (the shear at the tool edge bunches the first rings; see :mod:`jaxanm.fsw.simulate`).
+    (the shear at the tool edge bunches the first rings; see :mod:`jaxanm.fsw.lagrangian`).
     """
 
     _name = "geometry"
@@ -390,7 +390,7 @@ class Time(_Section):
     estimate (:class:`jaxanm.StepController`), ``dt`` the first step's, the local error of the
     field values at the points below ``atol`` times their scale (omega R1 for u and v, T0 for
     T) plus ``rtol`` times their size; a Lagrangian scene also bounds the steps by the point
-    motion (:func:`jaxanm.fsw.simulate.motion_dt_max`).
+    motion (:func:`jaxanm.fsw.lagrangian.motion_dt_max`).
     """
 
     _name = "time"

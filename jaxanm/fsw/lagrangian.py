@@ -1,0 +1,186 @@
+"""Lagrangian motion of an FSW run, the host hook after every accepted step (:class:`_Recorder`).
+
+- evaluates the fields at the points and records them (:class:`~jaxanm.fsw.record.Recorder`);
+- with ``lagrangian``: moves the points (tool and tool-edge points rotate rigidly by
+  ``omega dt``, exactly; plate points ``x <- x + dt V``), rebuilds the stencils with the same
+  width (nothing recompiles) and refits the unknowns so that the new stencils reproduce the
+  values the points carry (:class:`jaxanm.Remap`);
+- with ``lagrangian`` and ``geometry.rezone > 0``: when the cloud has sheared too far (some
+  plate point's nearest neighbour is closer than ``rezone`` times its distance at the last
+  seeding), re-seeds the plate points at their initial layout, with the values the current
+  solution has there (:meth:`_Recorder._rezone`).  From the first rezoning on, the
+  computational points (``nodes``) and the material points (``points``, which carry the colours
+  and the probes) differ: the material points are then advected like tracers, through the
+  moving cloud.
+- with ``tracers``: advects passive tracer particles (initially at the points) through the
+  fixed cloud, for the mixing picture.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+import jaxanm
+
+from .discretisation import Model, Refit
+from .geometry import build_stencils, evaluate_stencils, neighbour_list, rigid
+from .record import Recorder
+from .scene import Scene
+from .start import StartReport
+
+__all__ = ["motion_dt_max"]
+
+
+def _rotate(points: np.ndarray, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return points @ np.array([[c, s], [-s, c]])
+
+
+def _move(points: np.ndarray, kind: np.ndarray, velocity: np.ndarray, omega: float, dt: float) -> np.ndarray:
+    """Material motion over dt: tool and edge points rotate rigidly, the others follow V."""
+    return np.where(rigid(kind)[:, None], _rotate(points, omega * dt), points + dt * velocity)
+
+
+def _velocity(values: dict) -> np.ndarray:
+    """(N, 2) velocity from the ``{"u", "v", "T"}`` values."""
+    return np.stack([values["u"], values["v"]], axis=1)
+
+
+def _nearest_spacing(points: np.ndarray) -> np.ndarray:
+    """Distance from each point to its nearest other point."""
+    return cKDTree(points).query(points, 2)[0][:, 1]
+
+
+class _Recorder(Recorder):
+    """Host-side state of a run: the :class:`~jaxanm.fsw.record.Recorder`'s records, and the
+    moving cloud, material points and tracers with what their rebuilds carry from step to step
+    (neighbour candidates, the refit's factorisation), checkpointed with it."""
+
+    def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_times: frozenset,
+                 initial: np.ndarray | None = None, start: StartReport | None = None):
+        super().__init__(scene, model, stencils, x0, save_times, initial=initial, start=start)
+        self.width = stencils.index.shape[1]
+        # Rezoning: the material points separate from the nodes at the first re-seeding.
+        self.markers = None
+        self.seeded_spacing = _nearest_spacing(self.points[model.cloud.n_tool:])
+        # Lagrangian rebuilds: neighbour candidates (of the nodes, the material points after a
+        # rezoning, the tracers) and the refit's factorisation, carried from step to step (and
+        # through checkpoints)
+        self.neighbours = neighbour_list(scene.geometry)
+        self.marker_neighbours = neighbour_list(scene.geometry)
+        self.tracer_neighbours = neighbour_list(scene.geometry)
+        self.refit = Refit()
+
+    def _advected(self, particles: np.ndarray, x, dt: float) -> np.ndarray:
+        """Passive particles moved over dt by the flow of unknowns ``x`` on the current nodes."""
+        v = self._values_at(x, particles, self.tracer_neighbours)
+        return _move(particles, self.model.cloud.kind, _velocity(v), self.scene.tool.omega, dt)
+
+    def _marker_values(self, node_values: dict, at_free: dict) -> dict:
+        """Fields at the material points: the nodes' own values where they coincide (tool and
+        tool-edge points, never re-seeded), elsewhere the MLS values ``at_free`` at the other
+        (free) material points, in their order."""
+        free = ~rigid(self.model.cloud.kind)
+        out = {k: v.copy() for k, v in node_values.items()}
+        for k in "uvT":
+            out[k][free] = at_free[k]
+        return out
+
+    def _sheared(self, index: np.ndarray | None = None) -> bool:
+        """Whether some plate point is closer to its nearest neighbour than ``rezone`` times
+        its distance at the last seeding (never without ``geometry.rezone``).
+
+        ``index``: the stencils' neighbour indices on the current points, if on hand (nearest
+        first, so ``index[i, 1]`` is the point nearest to i; plate stencils hold only plate
+        points): the same nearest distances as a cKDTree of the plate points, without
+        building one.  Without it, that cKDTree.
+        """
+        fraction = self.scene.geometry.rezone
+        if fraction <= 0:
+            return False
+        n_tool = self.model.cloud.n_tool
+        if index is None:
+            spacing = _nearest_spacing(self.points[n_tool:])
+        else:
+            plate = np.arange(n_tool, self.points.shape[0])
+            d = self.points[index[plate, 1]] - self.points[plate]
+            spacing = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+        return bool(np.any(spacing < fraction * self.seeded_spacing))
+
+    def _rezone(self, x, values: np.ndarray) -> np.ndarray:
+        """Re-seed the plate points at their initial layout; return the nodes' new values.
+
+        Tool, tool-edge and plate-edge points keep their (rigidly turned) positions and values;
+        the plate and outer-ring points go back to the layout of t = 0, where they take the MLS
+        values of the current solution (``x`` on the nodes before re-seeding, whose own values
+        are ``values``).
+        The caller then moves the nodes and refits the unknowns as after any Lagrangian step.
+        """
+        cloud = self.model.cloud
+        moved = ~rigid(cloud.kind)
+        new_values = np.array(values)
+        new_values[moved] = self.model.values(x, evaluate_stencils(self.points, cloud.n_tool, self.scene.geometry,
+                                                                   cloud.points[moved], derivatives=False))
+        self.points = self.points.copy()
+        self.points[moved] = cloud.points[moved]
+        self.seeded_spacing = _nearest_spacing(self.points[cloud.n_tool:])
+        self.rezone_times.append(self.t)
+        return new_values
+
+    def after_step(self, t_new, x, params):
+        """The :func:`jaxanm.integrate` hook: record, then move the cloud (Lagrangian) or tracers."""
+        model, scene = self.model, self.scene
+        dt = float(t_new) - self.t
+        self.t = float(t_new)
+        x = np.asarray(x)
+        values = model.values(x, params["st"])
+        full = model.full_values(values)
+        save = self.t in self.save_times
+        if save:
+            self._save_sections(x)
+        if self.tracers is not None:
+            self.tracers = self._advected(self.tracers, x, dt)
+        if not model.effects.lagrangian:
+            self._record(self.t, self.points, full, save)
+            return params
+        # Recorded at t_new: the material points where this step's velocity takes them (the
+        # step was solved on the cloud of the previous positions, as before any rezoning).
+        kind, omega = model.cloud.kind, scene.tool.omega
+        if self.markers is None:
+            material, material_values = _move(self.points, kind, _velocity(full), omega, dt), full
+        else:
+            # MLS values at the free material points only: the rigid ones (tool and both sides
+            # of its edge) take the nodes' values and turn with the tool
+            at = self._values_at(x, self.markers[~rigid(kind)], self.marker_neighbours)
+            material_values = self._marker_values(full, at)
+            material = self.markers = _move(self.markers, kind, _velocity(material_values), omega, dt)
+        rezoned = self._sheared(np.asarray(params["st"].index))
+        if rezoned:
+            if self.markers is None:  # the material points go on from where the nodes were
+                self.markers = material
+            values = self._rezone(x, values)
+            full = model.full_values(values)
+        self.points = _move(self.points, kind, _velocity(full), omega, dt)
+        self._record(self.t, material, material_values, save)
+        st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width,
+                            neighbours=self.neighbours)
+        # re-seeded nodes carry other material's values: a step controller restarts its estimate
+        return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st, self.refit, guess=x),
+                            history=not rezoned)
+
+def motion_dt_max(scene: Scene) -> float:
+    """Largest adaptive step of a Lagrangian scene: the tool edge (speed omega R1, the fastest
+    points) moves at most a tenth of the spacing dr per step.
+
+    The step controller measures the error of the fields, not of the point motion, which is
+    explicit Euler (``x <- x + dt V``): on the circular paths near the tool it drifts outwards
+    by ``omega^2 r dt / 2`` per unit time (1.4 % of r over fsw_paper's 0.7 s at its dt = 1e-4,
+    17 % at this bound of 1.25e-3 s, until a rezoning re-seeds the cloud).  The bound keeps
+    each step's motion small against the stencils (h = 3 dr) and the neighbour lists' skin
+    (h / 4); it is no error control of the motion.
+    """
+    g = scene.geometry
+    return 0.1 * g.dr / (scene.tool.omega * g.R1)
