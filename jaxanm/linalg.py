@@ -93,8 +93,18 @@ class NestedDissectionLU:
         self._lu = scipy.sparse.linalg.splu(permuted, permc_spec="NATURAL",
                                            diag_pivot_thresh=LARGE_DIAG_PIVOT_THRESH,
                                            options={"SymmetricMode": True})
-        self.L, self.U = self._lu.L, self._lu.U
         self.shape = matrix.shape
+
+    @property
+    def L(self):
+        """The unit lower-triangular factor of ``P A P^T`` (made on each access, as SuperLU's:
+        kept, a copy would double the memory of the factors, 0.6 GB at dr/4)."""
+        return self._lu.L
+
+    @property
+    def U(self):
+        """The upper-triangular factor of ``P A P^T`` (made on each access, as SuperLU's)."""
+        return self._lu.U
 
     def solve(self, rhs) -> np.ndarray:
         """``A^-1 rhs`` for ``rhs`` of shape (n,) or (n, k)."""
@@ -109,7 +119,7 @@ class Factorization:
 
     With ``stats`` (a run's :class:`~jaxanm.stats.Stats`) every :meth:`solve` is timed there
     as ``solve`` and counted in ``stats.solves``; making the factors is not counted here
-    (:func:`factorize` counts it).
+    (:func:`factorize` counts it), but making them again after :meth:`release` is.
     """
 
     def __init__(self, matrix, stats: Stats | None = None):
@@ -117,32 +127,55 @@ class Factorization:
             matrix = scipy.sparse.csc_matrix(matrix, dtype=np.float64)
             if not np.all(np.isfinite(matrix.data)):
                 raise SingularMatrixError("tangent matrix has non-finite entries")
-            try:
-                self._lu = sparse_lu(matrix)
-            except RuntimeError as exc:  # "Factor is exactly singular"
-                raise SingularMatrixError(f"sparse LU failed: {exc}") from exc
-            self._solve = self._lu.solve
         else:
             matrix = np.asarray(matrix, dtype=np.float64)
             if not np.all(np.isfinite(matrix)):
                 raise SingularMatrixError("tangent matrix has non-finite entries")
-            with warnings.catch_warnings():
-                warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
-                try:
-                    lu_piv = scipy.linalg.lu_factor(matrix, check_finite=False)
-                except scipy.linalg.LinAlgWarning as exc:
-                    raise SingularMatrixError(f"dense LU: {exc}") from exc
-            if np.any(np.diag(lu_piv[0]) == 0.0):
-                raise SingularMatrixError("dense LU: matrix is exactly singular")
-            self._solve = lambda b: scipy.linalg.lu_solve(lu_piv, b, check_finite=False)
-        self.matrix = matrix  # kept so that a checkpoint can re-create these exact factors
+        self.matrix = matrix  # kept so that a checkpoint (or a released one) can re-create these exact factors
         self.shape = matrix.shape
         self.stats = stats
+        self._solve = self._factors(matrix)
+
+    @staticmethod
+    def _factors(matrix):
+        """The solve function of the LU factors of ``matrix`` (validated, finite)."""
+        if scipy.sparse.issparse(matrix):
+            try:
+                return sparse_lu(matrix).solve
+            except RuntimeError as exc:  # "Factor is exactly singular"
+                raise SingularMatrixError(f"sparse LU failed: {exc}") from exc
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
+            try:
+                lu_piv = scipy.linalg.lu_factor(matrix, check_finite=False)
+            except scipy.linalg.LinAlgWarning as exc:
+                raise SingularMatrixError(f"dense LU: {exc}") from exc
+        if np.any(np.diag(lu_piv[0]) == 0.0):
+            raise SingularMatrixError("dense LU: matrix is exactly singular")
+        return lambda b: scipy.linalg.lu_solve(lu_piv, b, check_finite=False)
+
+    def release(self) -> None:
+        """Free the factors, keeping the matrix.
+
+        A solver that replaces this K* calls it before factorising the next one, so that two
+        LUs are never alive at once (at dr/4 each takes about 0.8 GB).  It may still be held
+        elsewhere (the state a step started from, which a user may step from again): a later
+        :meth:`solve` then factorises the same matrix again, to the same factors, and counts
+        that factorisation in ``stats``.
+        """
+        self._solve = None
 
     def solve(self, rhs) -> np.ndarray:
         """Solve ``K* x = rhs`` with the stored factors (host, float64); ``rhs`` of shape (n,)
         or (n, k), counted as 1 or k solves."""
         rhs = np.asarray(rhs, dtype=np.float64)
+        if self._solve is None:  # released: factorise again (counted, as any factorisation)
+            if self.stats is None:
+                self._solve = self._factors(self.matrix)
+            else:
+                with self.stats.timer("factorize"):
+                    self._solve = self._factors(self.matrix)
+                self.stats.factorizations += 1
         if self.stats is None:
             return self._solve(rhs)
         with self.stats.timer("solve"):

@@ -455,6 +455,14 @@ class ANM(StepSolver):
         return x, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=residual)
 
 
+def _release(fact: Factorization | None) -> None:
+    """Free the factors of a K* the step replaces, before the next one is made: at most one LU
+    alive (the state the step started from keeps the matrix, and a solve with it factorises
+    again; see :meth:`Factorization.release`)."""
+    if fact is not None:
+        fact.release()
+
+
 class _ANMStep:
     """One time step of the :class:`ANM` (``opts``): series, continuation sub-steps, acceptance.
 
@@ -466,6 +474,12 @@ class _ANMStep:
         self.opts = opts
         self.problem = problem
         self.fact = fact
+
+    def _drop_factorization(self) -> None:
+        """Give up the stale K* (its factors freed, see :func:`_release`); the next series
+        factorises at its start point."""
+        _release(self.fact)
+        self.fact = None
 
     def run(self, step: int, x_old, t, dt, params):
         """The accepted state and the residual there (None when not evaluated): ``(x, R(x))``."""
@@ -501,7 +515,7 @@ class _ANMStep:
                 # the series claimed a = 1 but its end point is not converged (e.g. a last
                 # coefficient that vanishes by parity): not an accepted step
                 if not fresh:  # stale K*: refactorise at the start point and redo the series
-                    self.fact = None
+                    self._drop_factorization()
                     continue
                 if substeps >= self.opts.max_substeps:
                     raise StepFailure(f"series from a fresh K* claims a = 1 (a_max = {amax:.3g}) but its end point "
@@ -523,7 +537,7 @@ class _ANMStep:
                 st.pade_accepted += 1
                 return self._accepted(pade_end[0], a_pade, p, pade_end[3])
             if not fresh:  # stale K*: refactorise at the current point and redo the series
-                self.fact = None
+                self._drop_factorization()
                 continue
             if not np.all(np.isfinite(coeffs)):
                 raise NonFiniteError("series coefficients are not finite with a fresh K*", step=step, t=t,
@@ -675,13 +689,15 @@ class _NewtonStep:
                 raise NonFiniteError("Newton residual is not finite", step=step, t=t, residual_norm=r_norm)
             just_factored = self.fact is None or not self.opts.reuses_factorization
             if just_factored:
+                _release(self.fact)
                 self.fact = P.factorize_in_step(step, x, x_old, t, dt, params, residual_norm=r_norm)
             dx = -self.fact.solve(r)
             size = P.norm(dx)
             if (not just_factored and previous is not None and size > self.opts.max_rate * previous) or not np.isfinite(size):
                 if just_factored:
                     raise NonFiniteError("Newton correction is not finite", step=step, t=t, residual_norm=r_norm)
-                self.fact = None  # slow or diverging with an old Jacobian: rebuild it here
+                _release(self.fact)  # slow or diverging with an old Jacobian: rebuild it here
+                self.fact = None
                 previous = None
                 continue
             x = x + dx
