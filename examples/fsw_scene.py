@@ -25,9 +25,10 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from jaxanm.fsw import figures, load_scene, make_model, run
+from jaxanm.fsw import load_scene, make_model, run
 from jaxanm.fsw.energy import dissipated_power, stored_heat
 from jaxanm.fsw.geometry import build_cloud
+from jaxanm.fsw.io import figures
 
 DEFAULTS = {"dr": 7.5e-4, "dt": 1e-3, "t_end": 0.1}
 """Small settings: twice the paper's point spacing (239 points), ten times its time step, 0.1 s."""

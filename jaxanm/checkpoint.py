@@ -38,7 +38,7 @@ def atomic_path(path, prefix: str | None = None) -> Iterator[Path]:
     created in the destination directory (so ``os.replace`` is an atomic rename on the same
     file system) and removed if the ``with`` block raises: a reader never sees a half-written
     file, and a failed write leaves the old one in place.  The one atomic write of jaxanm
-    (checkpoints, and every output file through :func:`jaxanm.fsw.output.atomic_path`).
+    (checkpoints, and every output file: :mod:`jaxanm.fsw.io.output`, the sweeps).
     """
     path = Path(path)
     if prefix is None:

@@ -15,7 +15,7 @@ any scene field by dotted key (``--set material.K=2e16 --set effects=viscous,con
 ``--t-end``, ``--solver``, ``--order`` and ``--tol`` are shorthands for ``time.t_end``,
 ``solver.kind``, ``solver.order`` and ``solver.tol`` and are applied after the ``--set``
 overrides.  Results go to ``--out`` (default ``results/<scene>-<solver>``), see
-:func:`jaxanm.fsw.output.write_outputs`.
+:func:`jaxanm.fsw.io.output.write_outputs`.
 
 Checkpoints: ``--checkpoint-every N`` writes ``DIR/checkpoint.pkl`` atomically every N time
 steps, at the end, and when the run is interrupted (SIGINT/Ctrl-C, SIGTERM) or fails.  It holds
@@ -273,8 +273,8 @@ def _resume_plan(args: argparse.Namespace):
 
 
 def _write_outputs(result, out_dir, solver_settings):
-    """:func:`jaxanm.fsw.output.write_outputs` (imported on first use: matplotlib, meshio)."""
-    from jaxanm.fsw.output import write_outputs
+    """:func:`jaxanm.fsw.io.output.write_outputs` (imported on first use: matplotlib, meshio)."""
+    from jaxanm.fsw.io.output import write_outputs
 
     return write_outputs(result, out_dir, solver_settings)
 
@@ -339,7 +339,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _accuracy_lines(paths) -> list[str]:
     """The spatial-accuracy lines of the run's ``summary.json`` (none if it was not written)."""
-    from jaxanm.fsw.output import spatial_accuracy_lines
+    from jaxanm.fsw.io.output import spatial_accuracy_lines
 
     summary = next((p for p in paths if Path(p).name == "summary.json"), None)
     if summary is None:
@@ -356,7 +356,7 @@ def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> st
         level = logger.level
         logger.setLevel(logging.WARNING)  # the error line says what was written: no per-figure notes
         try:
-            from jaxanm.fsw.output import end_time
+            from jaxanm.fsw.io.output import end_time
 
             paths = write_results(partial, out_dir, scene)
             parts.append(f"results up to t = {end_time(partial):.6g} s ({len(paths)} files) written to {out_dir}")

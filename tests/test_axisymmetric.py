@@ -218,7 +218,7 @@ def test_summary_reports_band_resolution_and_rise_error(tmp_path):
     import json
     import types
 
-    from jaxanm.fsw import output
+    from jaxanm.fsw.io import output
     from jaxanm.fsw.geometry import build_cloud
 
     scene = load_scene("fsw_tracers").with_overrides({"time.t_end": "0.05"})

@@ -57,7 +57,7 @@ def test_fsw_scene_example(tmp_path, capsys):
 
     # the mixing state is carried by the tracers (the points of a fixed-point run never move);
     # tracers started in the tool have turned rigidly by omega t
-    from jaxanm.fsw import figures
+    from jaxanm.fsw.io import figures
 
     pts, material = figures.mixing_points(result, -1)
     start = result.tracers["points"][0]

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from matplotlib.tri import Triangulation
 
-from jaxanm.fsw import figures, output
+from jaxanm.fsw.io import figures, output
 from jaxanm.fsw.record import FSWResult
 from jaxanm.stats import Stats
 

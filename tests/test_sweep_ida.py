@@ -55,7 +55,7 @@ def sweep(tmp_path_factory):
     (root / "tiny_ida.toml").write_text(GRID)
     grid = read_grid(root / "tiny_ida.toml")
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr("jaxanm.fsw.output.write_figures", lambda result, out_dir: [])
+        patch.setattr("jaxanm.fsw.io.output.write_figures", lambda result, out_dir: [])
         with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
             result = run_sweep(grid, root / "out", scheduler=cluster.scheduler_address, progress=False,
                                compile_cache=False)

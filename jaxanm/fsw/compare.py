@@ -58,7 +58,7 @@ def write_run(run: dict, path: str | os.PathLike) -> Path:
     ``probes`` is a structured array whose first column is ``t``; floats are written with 17
     significant digits (exact round trip), as ``jaxanm run`` writes them.
     """
-    from jaxanm.fsw.output import atomic_path
+    from jaxanm.checkpoint import atomic_path
 
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)

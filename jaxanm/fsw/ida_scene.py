@@ -3,7 +3,7 @@
 :func:`run_ida` integrates a fixed-point scene's residual (``tracers`` or no motion) with
 SUNDIALS IDA (:func:`jaxanm.ida.integrate_ida`: variable-order BDF, the same residual and
 coloured sparse Jacobian as the implicit-Euler solvers) and returns an
-:class:`~jaxanm.fsw.record.FSWResult`, so that ``jaxanm.fsw.output.write_outputs`` writes the
+:class:`~jaxanm.fsw.record.FSWResult`, so that ``jaxanm.fsw.io.output.write_outputs`` writes the
 same files as ``jaxanm run --out`` and errors are measured by the same
 :func:`jaxanm.fsw.compare.differences`.  What differs from :func:`jaxanm.fsw.simulate.run`:
 

@@ -15,7 +15,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
-from jaxanm.fsw.output import atomic_path
+from jaxanm.checkpoint import atomic_path
 
 __all__ = ["MARKERS", "cheapest", "method", "pareto_front", "plot_pareto"]
 

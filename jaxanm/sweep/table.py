@@ -22,7 +22,7 @@ import math
 from pathlib import Path
 
 from jaxanm.fsw.compare import differences, load_run
-from jaxanm.fsw.output import atomic_path
+from jaxanm.checkpoint import atomic_path
 from jaxanm.sweep.task import COST_COLUMNS
 
 __all__ = ["ERROR_COLUMNS", "TABLE_NAME", "add_errors", "columns", "error_columns", "read_table", "write_table"]

@@ -20,7 +20,7 @@ import traceback
 from pathlib import Path
 
 from jaxanm.fsw.compare import cost_row
-from jaxanm.fsw.output import atomic_path
+from jaxanm.checkpoint import atomic_path
 
 __all__ = ["COST_COLUMNS", "ROW_FILE", "failed_row", "finished_row", "run_task", "task_spec", "warmup_scene"]
 
@@ -70,7 +70,7 @@ def run_task(spec: dict) -> dict:
         scene = Scene.from_dict(spec["scene"], source=f"task {spec['id']}")
         if spec.get("ida"):
             from jaxanm.fsw.ida_scene import run_ida
-            from jaxanm.fsw.output import write_outputs
+            from jaxanm.fsw.io.output import write_outputs
 
             if spec.get("warmup"):
                 run_ida(warmup_scene(scene, ida=True), **spec["ida"])

@@ -9,9 +9,9 @@
     probes.csv                     t, then <probe>_u, <probe>_v, <probe>_T per registration point
     fields.pvd                     ParaView collection of the VTU files with their times
     vtu/fields_00000.vtu ...       point cloud (VTK vertex cells) with u, v, T, speed, material
-    fig02_*.png ... fig11_*.png    the paper's figures (see :mod:`jaxanm.fsw.figures`)
+    fig02_*.png ... fig11_*.png    the paper's figures (see :mod:`jaxanm.fsw.io.figures`)
 
-Every file is written atomically (:func:`jaxanm.checkpoint.atomic_path`, re-exported here): to
+Every file is written atomically (:func:`jaxanm.checkpoint.atomic_path`): to
 a temporary name in the same directory, then ``os.replace``-d onto its final name, so a reader
 never sees a half-written file and an interrupted run leaves no partial file behind.
 """
@@ -30,7 +30,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from jaxanm.checkpoint import atomic_path
-from jaxanm.fsw import figures
+from jaxanm.fsw.io import figures
 
 log = logging.getLogger(__name__)
 
