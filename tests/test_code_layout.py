@@ -21,3 +21,87 @@ def test_no_function_longer_than_80_lines():
                 if lines > MAX_FUNCTION_LINES:
                     too_long.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {node.name} ({lines} lines)")
     assert not too_long, "functions longer than 80 lines:\n" + "\n".join(too_long)
+
+
+FSW_IMPORTS = {
+    # the data flow: scene -> geometry -> physics -> discretisation -> (start) -> record -> lagrangian -> simulate
+    "scene": set(),
+    "geometry": {"scene"},
+    "physics": {"scene", "geometry"},
+    "discretisation": {"scene", "geometry", "physics"},
+    "start": {"scene", "geometry", "physics", "discretisation"},
+    "record": {"scene", "geometry", "discretisation", "start"},
+    "lagrangian": {"scene", "geometry", "discretisation", "start", "record"},
+    "simulate": {"scene", "geometry", "discretisation", "start", "record", "lagrangian"},
+    # results: files and figures of an FSWResult
+    "io": set(),
+    "io.figures": {"scene", "record"},
+    "io.output": {"scene", "geometry", "record", "axisymmetric", "io", "io.figures"},
+    # analyses of a scene or of results, beside the flow
+    "axisymmetric": {"scene"},
+    "history": set(),
+    "compare": set(),
+    "energy": {"scene", "geometry", "physics", "discretisation"},
+    "calibration": {"scene", "geometry", "physics", "discretisation", "record"},
+    "ida_scene": {"scene", "geometry", "discretisation", "record"},
+}
+"""The :mod:`jaxanm.fsw` modules each fsw module may import (docs/architecture.md): a module
+imports only those upstream of it in the data flow, never one downstream."""
+
+FSW = PACKAGE / "fsw"
+
+
+def _fsw_imports(path: Path) -> set:
+    """The fsw modules ``path`` imports (relative or absolute, at the top or inside functions)."""
+    package = list(path.relative_to(FSW).parent.parts)  # [] for jaxanm.fsw, ["io"] for jaxanm.fsw.io
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            if node.level > len(package) + 1:  # above jaxanm.fsw: the core
+                continue
+            base = package[:len(package) - node.level + 1]
+            names = ([".".join(base + node.module.split("."))] if node.module
+                     else [".".join(base + [a.name]) for a in node.names])
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("jaxanm.fsw"):
+            rest = node.module[len("jaxanm.fsw"):].lstrip(".")
+            names = [rest] if rest else [a.name for a in node.names]
+            if rest == "io":
+                names = ["io." + a.name for a in node.names]
+        elif isinstance(node, ast.Import):
+            names = [a.name[len("jaxanm.fsw."):] for a in node.names if a.name.startswith("jaxanm.fsw.")]
+        else:
+            continue
+        found |= {n for n in names if n}
+    return found
+
+
+def test_fsw_modules_import_only_upstream_modules():
+    """Each fsw module imports only the fsw modules :data:`FSW_IMPORTS` allows it (upstream in
+    the data flow), and every fsw module is listed there (a new one says where it belongs)."""
+    problems = []
+    for path in sorted(FSW.rglob("*.py")):
+        module = ".".join(path.relative_to(FSW).with_suffix("").parts).removesuffix(".__init__")
+        if module == "__init__":
+            continue  # the package's exports
+        if module not in FSW_IMPORTS:
+            problems.append(f"{module}: not in FSW_IMPORTS (say what it may import)")
+            continue
+        extra = _fsw_imports(path) - FSW_IMPORTS[module] - {module}
+        if extra:
+            problems.append(f"{module} imports {sorted(extra)}, allowed {sorted(FSW_IMPORTS[module])}")
+    assert not problems, "\n".join(problems)
+
+
+def test_the_core_knows_nothing_about_fsw():
+    """No module of the engine (``jaxanm/*.py`` but the command line) imports :mod:`jaxanm.fsw`."""
+    offenders = []
+    for path in sorted(PACKAGE.glob("*.py")):
+        if path.name in ("cli.py", "__main__.py"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            names = ([node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0
+                     else ["." * node.level + (node.module or "")] if isinstance(node, ast.ImportFrom)
+                     else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
+            if any(n.startswith(("jaxanm.fsw", ".fsw")) for n in names):
+                offenders.append(f"{path.name}:{node.lineno}")
+    assert not offenders, "the core imports jaxanm.fsw at " + ", ".join(offenders)

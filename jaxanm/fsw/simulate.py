@@ -23,7 +23,7 @@ from .record import FSWResult
 from .scene import Scene
 from .start import quasi_static_state
 
-__all__ = ["FSWResult", "run"]
+__all__ = ["run", "scene_differences", "step_controller"]
 
 
 def step_controller(scene: Scene, model: Model):
