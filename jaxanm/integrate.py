@@ -122,14 +122,39 @@ def params_float64(params):
     return params
 
 
-def on_device(params):
+def on_device(params, previous=None):
     """``params`` with every array leaf placed on the device once (``jax.device_put``).
 
     A jitted call converts each numpy leaf it is given (a copy to the device per leaf and per
     call); a step makes several calls with the same params (residuals, series orders,
     tangents), so the run hands them over as device arrays, converted once per change.
+
+    ``previous``: the device params they replace.  A numpy leaf equal to the device array at
+    the same place there (same shape, dtype and values) keeps that array instead of a new
+    copy: an ``after_step`` hook that rebuilds its params every step then pays a transfer only
+    for what changed (fsw_paper's Lagrangian hook: the points and normals, not its 20 scalar
+    constants and the cloud's kinds; 0.04 against 0.4 ms a step).  The device values are the
+    same either way.
     """
+    if previous is not None:
+        leaves, tree = jax.tree.flatten(params)
+        old, old_tree = jax.tree.flatten(previous)
+        if tree == old_tree:
+            kept = [_unchanged(leaf, o) for leaf, o in zip(leaves, old)]
+            moved = iter(jax.device_put([leaf for leaf, k in zip(leaves, kept) if k is None]))
+            return jax.tree.unflatten(tree, [next(moved) if k is None else k for k in kept])
     return jax.device_put(params)
+
+
+def _unchanged(leaf, old):
+    """The device array to keep for ``leaf``: ``leaf`` itself if on the device already, ``old``
+    if ``leaf`` is a numpy array or scalar of its shape, dtype and values; else None."""
+    if isinstance(leaf, jax.Array):
+        return leaf
+    if (isinstance(leaf, (np.ndarray, np.generic)) and isinstance(old, jax.Array) and not old.weak_type
+            and old.shape == leaf.shape and old.dtype == leaf.dtype and np.array_equal(np.asarray(old), leaf)):
+        return old
+    return None
 
 
 @entry_point
@@ -474,7 +499,7 @@ class _TimeLoop:
                 run.history = None
             params_new, x_new = params_new.params, _remapped_state(params_new.x, x_new)
         if params_new is not run.params:
-            params_new = on_device(params_new)
+            params_new = on_device(params_new, run.params)
         run.advance(k, t_new, x_new, params_new, saved=saved, observe=o.saveat.fn)
         if o.sensitivity is not None:
             o.sensitivity.record(t_new, x_new, run.params)
