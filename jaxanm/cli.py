@@ -239,16 +239,16 @@ def _resume_plan(args: argparse.Namespace):
     Options given alongside must describe the stored scene exactly (else :class:`UsageError`
     naming the differing fields); ``--out``, if given, must be DIR.
     """
-    from jaxanm.checkpoint import read
     from jaxanm.fsw.scene import Scene
     from jaxanm.fsw.simulate import scene_differences
+    from jaxanm.integrate import stored_host_state
 
     out_dir = args.resume
     path = out_dir / CHECKPOINT_NAME
     if not path.is_file():
         raise UsageError(f"--resume {out_dir}: no {CHECKPOINT_NAME} there; start the run with "
                          f"--checkpoint-every N --out {out_dir} to make one")
-    host = read(path).get("host_state")
+    host = stored_host_state(path)
     if not (isinstance(host, dict) and isinstance(host.get("scene"), dict)):
         raise UsageError(f"--resume {out_dir}: {path} was not written by 'jaxanm run' (no scene stored)")
     try:

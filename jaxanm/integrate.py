@@ -93,6 +93,12 @@ def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, saveat=None, contr
     return x0, scale
 
 
+def stored_host_state(path):
+    """The host state a checkpoint of :func:`integrate` stores (the ``get()`` of its
+    ``host_state`` pair at the last checkpointed step), or None if the run kept none."""
+    return read(path).get("host_state")
+
+
 def jacobian_kind(jacobian: str, sparsity, n: int) -> str:
     """``"dense"`` or ``"sparse"``: ``jacobian`` itself, or for ``"auto"`` sparse when a pattern
     is given or there are more than :data:`AUTO_SPARSE_SIZE` unknowns."""

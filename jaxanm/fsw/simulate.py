@@ -58,7 +58,7 @@ def _host_state(scene: Scene, recorder: _Recorder, settings: dict):
 
     The snapshot is ``{"scene": scene.to_dict(), "settings": settings, "recorder": {...}}`` where
     the recorder part holds every attribute of the recorder except the scene and model (moving
-    points, step and time, probe histories, saved fields, sections, tracers); pickled as is.
+    points, time, probe histories, saved fields, sections, tracers); pickled as is.
     ``set`` refuses a checkpoint written for another scene (:class:`jaxanm.InputError` naming
     the differing fields).
     """
