@@ -77,7 +77,9 @@ def read(path) -> dict:
     except FileNotFoundError as exc:
         raise InputError(f"no checkpoint at {path}: nothing to resume (start the run without resume)") from exc
     except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError) as exc:
-        raise InputError(f"{path} is not a readable jaxanm checkpoint ({type(exc).__name__}: {exc})") from exc
+        raise InputError(f"{path} is not a readable jaxanm checkpoint ({type(exc).__name__}: {exc}); if another "
+                         "jaxanm version wrote it (classes it stores may have moved), resume it with that "
+                         "version, or start afresh") from exc
     if not isinstance(payload, dict) or payload.get("format") != FORMAT_VERSION:
         found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
         raise InputError(f"checkpoint {path} has format {found!r}, this jaxanm reads {FORMAT_VERSION}; "
