@@ -1,6 +1,6 @@
 """Profile of the host work of one Lagrangian ``fsw_paper`` step (issue 14, item 1).
 
-The host work is :meth:`jaxanm.fsw.simulate._Recorder.after_step`: field values at the points,
+The host work is :meth:`jaxanm.fsw.lagrangian.MovingRecorder.after_step`: field values at the points,
 probes, moving the points, the shear test, the stencil rebuild and the refit of the state.
 This script
 
@@ -36,8 +36,14 @@ import numpy as np
 import jaxanm
 from jaxanm import mls
 from jaxanm.fsw import discretise, load_scene
-from jaxanm.fsw import lagrangian as sim
 from jaxanm.fsw.geometry import _apart
+
+try:  # the hook's module since issue 17's split of fsw/
+    from jaxanm.fsw import lagrangian as sim
+    Hook = sim.MovingRecorder
+except ImportError:  # an older checkout: the hook was simulate._Recorder
+    from jaxanm.fsw import simulate as sim
+    Hook = sim._Recorder
 
 DOCS = pathlib.Path(__file__).resolve().parent.parent / "docs"
 
@@ -52,7 +58,7 @@ def warm_state(steps: int = 3, scene_name: str = "fsw_paper"):
     scene = load_scene(scene_name)
     _, stencils, model, params, x0 = discretise(scene)
     dt = scene.time.dt
-    recorder = sim._Recorder(scene, model, stencils, x0, set())
+    recorder = Hook(scene, model, stencils, x0, set())
     # keep the recorder and params as they were before the last hook call
     last = {}
 

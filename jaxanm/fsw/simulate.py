@@ -18,7 +18,7 @@ from typing import Callable
 import jaxanm
 
 from .discretisation import Model, discretise
-from .lagrangian import _Recorder, motion_dt_max
+from .lagrangian import MovingRecorder, motion_dt_max
 from .record import FSWResult
 from .scene import Scene
 from .start import quasi_static_state
@@ -53,7 +53,7 @@ _HOST_INPUTS = ("scene", "model")
 """Recorder attributes rebuilt from the scene on resume (everything else is checkpointed)."""
 
 
-def _host_state(scene: Scene, recorder: _Recorder, settings: dict):
+def _host_state(scene: Scene, recorder: MovingRecorder, settings: dict):
     """The ``(get, set)`` pair :func:`jaxanm.integrate` stores in / restores from its checkpoints.
 
     The snapshot is ``{"scene": scene.to_dict(), "settings": settings, "recorder": {...}}`` where
@@ -138,7 +138,7 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     tm = scene.time
     controller = step_controller(scene, model)
     saveat = jaxanm.SaveAt(ts=[t for t in tm.save_times if t > 0])
-    recorder = _Recorder(scene, model, stencils, x0, saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None),
+    recorder = MovingRecorder(scene, model, stencils, x0, saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None),
                          initial=initial, start=start)
     latest = {"stats": jaxanm.Stats()}
 
