@@ -26,6 +26,8 @@ import math
 import tomllib
 from pathlib import Path
 
+from ..solvers import ANM, ModifiedNewton, Newton
+
 __all__ = [
     "EDGE_ROWS",
     "EDGE_SOURCES",
@@ -461,15 +463,12 @@ class SolverSpec(_Section):
 
     def make(self):
         """The :mod:`jaxanm` solver options object (``jaxanm.ANM``, ``Newton`` or ``ModifiedNewton``)."""
-        import jaxanm
-
         if self.kind == "anm":
-            return jaxanm.ANM(order=self.order, tol=self.tol, criterion=self.criterion,
-                              max_substeps=self.max_substeps, adaptive=self.adaptive, homotopy=self.homotopy,
-                              pade=self.pade)
+            return ANM(order=self.order, tol=self.tol, criterion=self.criterion, max_substeps=self.max_substeps,
+                       adaptive=self.adaptive, homotopy=self.homotopy, pade=self.pade)
         if self.kind == "newton":
-            return jaxanm.Newton(tol=self.tol)
-        return jaxanm.ModifiedNewton(tol=self.tol, max_rate=self.max_rate)
+            return Newton(tol=self.tol)
+        return ModifiedNewton(tol=self.tol, max_rate=self.max_rate)
 
 
 @dataclasses.dataclass(frozen=True)
