@@ -232,6 +232,35 @@ left: the basis columns stacked into (6, n, m) arrays for fewer, larger reductio
 slower for the Gram sums, 7x for the products with Q1), reductions as products with a ones
 vector (no gain), the transposed (m, n) layout (slower in every run, up to 2.4x).
 
+## Third round (labels 'before (9aefbae), idle' and 'after, idle', 2026-12-03)
+
+Both labels are per-part medians of five runs of 20 repeats, alternated (before, after, ...)
+on an idle 2-core AMD EPYC (load 0.8-1.8: the runs' own threads).  Consecutive runs of the
+same code differed by up to 1.4x (whole hook, before: 5.5-8.0 ms; after: 5.1-7.9 ms), so only
+the medians compare.  The whole hook: 5.99 -> 5.59 ms.
+
+- **rcond screen** (`mls._condition_screen`): the kernel's lower bound of the moment
+  matrices' rcond is now ``det ((k-1)/trace)^(k-1) / |A|_F`` (AM-GM on the k - 1 largest
+  eigenvalues) instead of ``det / trace^k``, 3e3 to 8e3 times tighter for these
+  equilibrated 6 x 6 matrices.  It clears the screen at all 881 points, where the old one sent 148 edge rows to
+  numpy moments and eigenvalues: 0.73 ms, timed alone.  Which rows pass is unchanged, and so
+  are the fields (bit-identical).
+- Outside the hook, in the time loop: `integrate.on_device` keeps the device arrays of the
+  leaves a hook's rebuilt params did not change (20 scalar constants, the point kinds):
+  0.44 -> 0.15 ms a step.
+
+Timed in place, after the same warm-up, without the profile's copy of the recorder before
+each call (so with warm caches), medians of 30 calls at load 1: the hook takes 4.9 ms, of
+which the stencil rebuild is 2.85 ms (MLS kernel about 1.7, candidate lists 0.6), the refit
+1.45 ms (5-8 SuperLU solves of 3 right-hand sides, 0.14 ms each), values, motion, shear test
+and params 0.35 ms.  So the issue's 5 ms is met with warm caches and not in this profile,
+whose copy of the recorder before every call leaves the caches cold (5.6 ms).
+
+Measured and left: the block size of the kernel's loop (interleaved in one process, 300
+calls each: 16 points 2.16 ms, 32 1.91, 64 1.77, 128 2.26; the results are bit-identical
+for every size), and an extrapolated start for the refit (the last step's correction added
+to the guess: 6.41 against 6.39 iterations a step over 0.02 s, no gain).
+
 ## What changed (issue 14, item 1), and what each part gained
 
 - **values** (`Model.values`): numpy gathers of the stencils instead of a jnp dispatch per field.

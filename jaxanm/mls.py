@@ -431,10 +431,10 @@ def _condition_screen(bound, x, y, mask, c, q):
     matrices (:func:`_equilibrated_moments` of the kernel's inputs ``x, y, mask, c, q``).
     Which rows pass the check does not depend on the bound.
 
-    The bound was ``det / trace^k`` until 2026-12-03, 4e3 times weaker for an equilibrated
-    6 x 6 matrix (trace 6, Frobenius norm >= sqrt 6): it left 148 of fsw_paper's 881 rows
-    (the one-sided supports at the disc's edges, rcond ~ 1e-5) to the moments and eigenvalues
-    in numpy, 0.7 ms a rebuild (idle); this one leaves none.
+    The bound was ``det / trace^k`` until 2026-12-03, 3e3 to 8e3 times weaker for an
+    equilibrated 6 x 6 matrix (trace 6, Frobenius norm between sqrt 6 and 6): it left 148 of
+    fsw_paper's 881 rows (the one-sided supports at the disc's edges, rcond ~ 1e-5) to the
+    moments and eigenvalues in numpy, 0.7 ms a rebuild (idle); this one leaves none.
     """
     bound = np.array(bound)
     # 1e3 x RCOND_MIN: a margin far above the determinant's round-off
