@@ -78,7 +78,6 @@ def probe_points(scene: Scene, cloud) -> dict:
     return {p.name: int(plate[np.argmin(np.hypot(*(cloud.points[plate] - (p.x, p.y)).T))]) for p in scene.probes}
 
 
-
 class Recorder:
     """What a run records on the host: probes at every step, fields (and tracers) and sections at
     the saved steps, on the current nodes ``points`` (the cloud the unknowns live on).

@@ -138,8 +138,8 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     tm = scene.time
     controller = step_controller(scene, model)
     saveat = jaxanm.SaveAt(ts=[t for t in tm.save_times if t > 0])
-    recorder = MovingRecorder(scene, model, stencils, x0, saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None),
-                         initial=initial, start=start)
+    save_times = saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None)
+    recorder = MovingRecorder(scene, model, stencils, x0, save_times, initial=initial, start=start)
     latest = {"stats": jaxanm.Stats()}
 
     def step_done(t, x, stats):
