@@ -256,6 +256,18 @@ which the stencil rebuild is 2.85 ms (MLS kernel about 1.7, candidate lists 0.6)
 and params 0.35 ms.  So the issue's 5 ms is met with warm caches and not in this profile,
 whose copy of the recorder before every call leaves the caches cold (5.6 ms).
 
+**This profile underestimates the hook of a real run.** `benchmarks/hook_in_run.py` times
+the hook and its parts at every step of fsw_paper from rest to 0.05 s (500 steps), where the
+solver's series and triangular solves run between two hooks.  Medians in five runs at load
+1-1.5, this session's code: 6.1-9.7 ms (the same code back to back: 6.07 and 9.68 ms, the
+machine's speed); in one run of 6.07 ms: stencil rebuild 3.42 (MLS kernel 1.95, neighbour
+query 0.88), refit 2.00 (mean 2.45 with its refactorisations), values 0.24, shear test 0.06.
+Every part is 1.2-2.4x its time here: the caches hold the solver's data when the hook starts,
+and the refit iterates more in a developing flow (6.4 iterations a step over the first 0.02 s
+against 5 on this profile's state).  In a run, 9aefbae and this code took 7.16 / 7.01 and
+6.33-7.15 ms alternately: the screen's 0.7 ms does not stand out of that spread.  So the
+issue's 5 ms is not met in a run, by 1-2 ms.
+
 Measured and left: the block size of the kernel's loop (interleaved in one process, 300
 calls each: 16 points 2.16 ms, 32 1.91, 64 1.77, 128 2.26; the results are bit-identical
 for every size), and an extrapolated start for the refit (the last step's correction added
