@@ -21,7 +21,7 @@ from ._x64 import entry_point
 from .checkpoint import read, sigterm_as_interrupt, to_host, write_atomic
 from .errors import InputError, NonFiniteError, StepFailure
 from .jacobian import detect_sparsity
-from .saveat import SaveAt, fixed_steps
+from .saveat import SaveAt, fixed_steps, step_end
 from .solvers import Problem, StepSolver
 from .stats import Stats
 from .step_control import StepController
@@ -384,7 +384,7 @@ class _TimeLoop:
         o, run = self.options, self.run_state
         if o.controller is None:
             for k in range(run.k + 1, self.n_steps + 1):
-                t_new = o.t0 + k * o.dt if k < self.n_steps else float(o.t1)
+                t_new = step_end(o.t0, o.t1, o.dt, k, self.n_steps)
                 x_new, r_norm = self._advance(run.x, run.t, t_new - run.t, k, 0)
                 self._record(k, t_new, x_new, r_norm, saved=k in self.saves)
         else:
