@@ -171,12 +171,7 @@ class Factorization:
         or (n, k), counted as 1 or k solves."""
         rhs = np.asarray(rhs, dtype=np.float64)
         if self._solve is None:  # released: factorise again (counted, as any factorisation)
-            if self.stats is None:
-                self._solve = self._factors(self.matrix)
-            else:
-                with self.stats.timer("factorize"):
-                    self._solve = self._factors(self.matrix)
-                self.stats.factorizations += 1
+            self._solve = _counted(self.stats, lambda: self._factors(self.matrix))
         if self.stats is None:
             return self._solve(rhs)
         with self.stats.timer("solve"):
@@ -185,10 +180,17 @@ class Factorization:
         return x
 
 
+def _counted(stats: Stats | None, make):
+    """``make()``, a factorisation, timed as ``factorize`` and counted in ``stats`` if given."""
+    if stats is None:
+        return make()
+    with stats.timer("factorize"):
+        made = make()
+    stats.factorizations += 1
+    return made
+
+
 def factorize(matrix, stats: Stats) -> Factorization:
     """Factorise ``matrix`` on the host, counting and timing it in ``stats`` (where its
     solves are then counted and timed too)."""
-    with stats.timer("factorize"):
-        fact = Factorization(matrix, stats)
-    stats.factorizations += 1
-    return fact
+    return _counted(stats, lambda: Factorization(matrix, stats))
