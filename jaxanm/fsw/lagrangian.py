@@ -171,6 +171,7 @@ class MovingRecorder(Recorder):
         return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st, self.refit, guess=x),
                             history=not rezoned)
 
+
 def motion_dt_max(scene: Scene) -> float:
     """Largest adaptive step of a Lagrangian scene: the tool edge (speed omega R1, the fastest
     points) moves at most a tenth of the spacing dr per step.
