@@ -273,6 +273,87 @@ calls each: 16 points 2.16 ms, 32 1.91, 64 1.77, 128 2.26; the results are bit-i
 for every size), and an extrapolated start for the refit (the last step's correction added
 to the guess: 6.41 against 6.39 iterations a step over 0.02 s, no gain).
 
+## Fourth round (2026-12-03, second session): why a run's hook is slower, and what was tried
+
+No code of the hook changed in this round; it measured why the hook costs 6-10 ms in a run
+against 5-6 ms here, and tried five ways to hide or shorten its critical path.  Idle 2-core
+AMD EPYC, load 0.6-1.8 (the runs' own threads).  Today's machine: this profile at HEAD gave
+8.10, 7.47, 6.39 and 6.65 ms for the whole hook (four runs), and `hook_in_run.py` 6.88 ms
+(stencil rebuild 3.83: neighbour query 0.94, MLS kernel 2.18; refit 2.17; values 0.27).
+
+**Any 5 ms of other work makes the next short call slower, not only a full cache.**
+`benchmarks/kernel_after_idle.py` times the hook's MLS kernels and the refit's seven SuperLU
+solves back to back and after 5 ms asleep, 5 ms of a busy Python loop (no memory traffic) or
+reading 64 MB.  Medians of 200 calls, three runs (ms):
+
+| part | back to back | after 5 ms asleep | after 5 ms busy | after reading 64 MB |
+| --- | ---: | ---: | ---: | ---: |
+| MLS kernel (values and derivatives) | 1.42-1.50 | 2.00-2.90 | 2.08-3.11 | 2.69-3.58 |
+| MLS kernel (values only) | 0.78-1.15 | 1.24-1.96 | 1.37-1.99 | 1.61-2.03 |
+| 7 refit solves (3 right-hand sides) | 1.09-1.38 | 1.26-1.90 | 1.17-1.79 | 1.19-2.07 |
+
+Pinned to one CPU (`taskset -c 0`) the kernel took 1.18-1.66 back to back and 1.57-3.47 ms
+after the others: the same.  So the cost is not the caches alone (sleeping or spinning moves
+no data) nor the XLA worker threads of the second core; it is the state any other work leaves
+the core in, and the XLA kernels pay it most (1.4-2.4x, the solves 1.1-1.5x).  In a run every
+part of the hook starts after a solver step, hence `hook_in_run.py`'s 1.2-2.4x; this profile,
+which copies the recorder before each call, sits between the two.  The run is serial: it
+uses about 1.1 cores (`time` of `jaxanm run fsw_paper --t-end 0.05`: 17.4 s user + 3.5 s
+system in 19.2 s), and pinned to one CPU it took 17.5 and 14.4 s against 15.7 and 16.6 s on
+two, alternated.
+
+Tried and left (measured on this code, alternated, in one process where possible):
+
+- **The refit beside the kernel's derivatives.**  The refit needs only phi.  A kernel split
+  in two calls, phi first (with the QR factors as outputs) and the derivatives from them,
+  lets the refit run while the second call computes.  The first call alone took 0.9-1.1 ms,
+  the two in sequence 2.7-3.3 ms against 1.1-1.4 for the fused kernel (passing the 13 (n, m)
+  intermediates costs more than it saves), and the second call beside the seven solves
+  3.7-4.3 ms against 2.2-2.5 for the fused kernel followed by the solves.  For scale, the
+  whole fused kernel dispatched and the solves run while it computes (impossible in the hook:
+  the refit needs its phi) took 2.06 against 3.09 ms in sequence.
+- **The material points' work on a worker thread.**  After a rezoning, a step's material
+  points take their MLS values on the nodes the step was solved on, move and are recorded;
+  nothing the solver needs depends on it (2.4-2.8 ms here).  On a one-thread pool, awaited
+  by the next hook, a checkpoint and the result, the records were bit-identical to the inline
+  run (fsw_paper with `geometry.rezone=0.999` to 0.05 s; a test comparing threaded and inline
+  runs of a rezoned scene).  Timed by per-step medians over alternating blocks of 25 steps
+  in one run (0.1 s, rezone 0.999, 40 blocks; threaded minus inline, median over the 20 block
+  pairs):
+  - submitted at the end of the hook, beside the next step: +1.9 ms (5 of 20 pairs faster)
+    at Python's default GIL switch interval, -0.65 ms (11 of 20) at 0.2 ms.  The worker's
+    numpy holds the GIL, and the main thread, back from each of the step's GIL-free solves
+    and XLA calls, waits up to the switch interval to get it back;
+  - submitted before the node stencils' rebuild, beside it and the refit: -3.10, -1.41 and
+    -0.28 ms in three runs (15, 14 and 10 of 20 pairs faster).
+
+  So at best about 1.4 ms a step after a rezoning, not resolved from the machine's spread in
+  one run of three, for a thread that runs XLA beside the main thread's XLA calls (this
+  kernel's batched LAPACK once deadlocked the XLA CPU runtime under load, see `mls`).  Not
+  kept.  A single-threaded version of the same overlap (the markers' kernel dispatched before
+  the nodes' neighbour query and awaited after the nodes' kernel) needs stencil builds that
+  return before their kernel has run.
+- **Two threads for the refit's solves** (1 and 2 right-hand sides; SuperLU releases the
+  GIL): 0.179 against 0.180 ms in sequence, and 0.150 ms for one call with all 3.
+- **XLA options**: the legacy runtime (`--xla_cpu_use_thunk_runtime=false`), the old fusion
+  emitters, the concurrency-optimised scheduler off, synchronous dispatch
+  (`jax_cpu_enable_async_dispatch=False`).  None was faster back to back or after idling,
+  beyond the spread above.
+- **The value matrix's SuperLU ordering** (3 right-hand sides, one solve): COLAMD 164,550
+  non-zeros in L + U, 0.265 ms; MMD_AT_PLUS_A 93,210, 0.221 ms; MMD_ATA 120,862, 0.150 ms;
+  NATURAL 221,550, 0.332 ms.  linalg's settings (`PERMC_SPEC` in symmetric mode) give
+  0.147 ms, already the fastest.
+
+Left, knowingly: in the neighbour query the tool centre's row (its third ring at h to
+round-off) goes to a cKDTree of all points every step: building it takes 0.17 ms and
+querying it 0.11 ms (line profile).  That is the price of keeping cKDTree's decisions for
+nodes at h (second round).
+
+So the issue's 5 ms holds back to back (4.9 ms, third round) and not in a run (6-7 ms).  What
+is left is the cost of short calls after other work, which the alternation of solver step and
+hook imposes.  A few longer host phases would avoid it, or an MLS kernel outside XLA (compiled
+code with no executor to wake), which would add a dependency.
+
 ## What changed (issue 14, item 1), and what each part gained
 
 - **values** (`Model.values`): numpy gathers of the stencils instead of a jnp dispatch per field.
