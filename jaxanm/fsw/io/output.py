@@ -29,6 +29,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from jaxanm._extras import missing_extra_message
 from jaxanm.checkpoint import atomic_path
 from jaxanm.fsw.io import figures
 
@@ -209,7 +210,11 @@ def write_vtu(result, out_dir: str | os.PathLike) -> list[Path]:
     file lists the VTU files with their times; open it in ParaView to get the time series.
     VTU files of an earlier run in the same directory that this run does not list are removed.
     """
-    import meshio
+    try:
+        import meshio
+    except ImportError as exc:  # the vtu extra is optional: the other result files do not need it
+        log.warning("VTU files skipped: %s", missing_extra_message("vtu", "VTU output", str(exc)))
+        return []
 
     out_dir = Path(out_dir)
     vtu_dir = out_dir / VTU_DIR
