@@ -62,6 +62,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
+from ._extras import require
 from ._x64 import entry_point
 from .errors import InputError
 from .integrate import params_float64
@@ -234,10 +235,10 @@ def _newton_pattern(g, x0, sparsity, t0, h0, params) -> scipy.sparse.csc_matrix:
     return _csc_pattern(pattern, n)
 
 
-def _ida(F, jac, h0, params, pattern, stats: IDAStats, **options):
-    """SUNDIALS IDA (sksundae, sparse direct solver) on the DAE residual ``F`` and the Newton
-    matrix ``jac``, whose calls are counted and timed in ``stats``; ``options`` go to IDA."""
-    import sksundae
+def _ida(ida_module, F, jac, h0, params, pattern, stats: IDAStats, **options):
+    """SUNDIALS IDA (``ida_module`` = ``sksundae.ida``, sparse direct solver) on the DAE residual
+    ``F`` and the Newton matrix ``jac``, whose calls are counted and timed in ``stats``;
+    ``options`` go to IDA."""
 
     def resfn(t, y, yp, res):
         t1 = time.perf_counter()
@@ -254,7 +255,7 @@ def _ida(F, jac, h0, params, pattern, stats: IDAStats, **options):
 
     with warnings.catch_warnings():  # the wheel warns that its own sparse DQ Jacobian is unused: jacfn replaces it
         warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
-        return sksundae.ida.IDA(resfn, jacfn=jacfn, linsolver="sparse", sparsity=pattern.astype(np.float64), **options)
+        return ida_module.IDA(resfn, jacfn=jacfn, linsolver="sparse", sparsity=pattern.astype(np.float64), **options)
 
 
 def _march(solver, t_start: float, t_out, max_steps: int, stats: IDAStats, wall0: float):
@@ -332,11 +333,13 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
         Threads of SuperLU_MT.
 
     Returns an :class:`IDASolution`.  Raises :class:`InputError` on bad input (before any long
-    computation), the message naming the input and the fix; :class:`IDAFailure` when IDA
+    computation), the message naming the input and the fix (a missing scikit-sundae names
+    ``pip install 'jaxanm[ida]'``); :class:`IDAFailure` when IDA
     stopped (error test or Newton failures at the minimum step, too many steps, a residual
     that went non-finite), with its flag, message and time.
     """
     wall0 = time.perf_counter()
+    ida_module = require("sksundae.ida", "ida", "jaxanm.ida.integrate_ida (SUNDIALS IDA)")
     x0, t_out, atol_a, scale, h0, yp0, ic_dt = _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps)
     params = jax.device_put(params_float64(params))
     F = dae_residual(residual)
@@ -351,7 +354,7 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
     else:
         t_start, y0 = float(t0), x0
     stats.wall_time["start"] = time.perf_counter() - wall0
-    solver = _ida(F, jac, h0, params, pattern, stats, nthreads=nthreads, rtol=float(rtol), atol=atol_a * scale,
+    solver = _ida(ida_module, F, jac, h0, params, pattern, stats, nthreads=nthreads, rtol=float(rtol), atol=atol_a * scale,
                   max_order=int(max_order), first_step=float(first_step), max_step=float(max_step))
     r = solver.init_step(t_start, y0, yp0)
     if not r.success:

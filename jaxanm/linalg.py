@@ -15,6 +15,7 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
+from ._extras import require
 from .errors import SingularMatrixError
 from .stats import Stats
 
@@ -72,7 +73,9 @@ def sparse_lu(matrix):
 def nested_dissection(matrix) -> np.ndarray:
     """METIS nested-dissection ordering of the graph of ``matrix + matrix^T``: ``perm`` such
     that ``matrix[perm][:, perm]`` has little fill in its LU factors."""
-    import pymetis  # imported here: only clouds above SYMMETRIC_MAX_UNKNOWNS unknowns need it
+    # imported here: only matrices above SYMMETRIC_MAX_UNKNOWNS unknowns need it (the metis extra)
+    pymetis = require("pymetis", "metis",
+                      f"the nested-dissection LU of matrices above {SYMMETRIC_MAX_UNKNOWNS} unknowns")
 
     graph = scipy.sparse.csr_matrix(abs(matrix) + abs(matrix.T))
     graph.setdiag(0)
