@@ -52,4 +52,5 @@ __all__ = [
     "value_and_grad",
 ]
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
+"""The package version (the one source: pyproject.toml reads it, see CHANGELOG.md)."""
