@@ -48,6 +48,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import sys
 import time
 from pathlib import Path
@@ -131,7 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.set_defaults(func=_cmd_sweep)
 
     scenes = sub.add_parser("scenes", help="list the shipped scenes",
-                            description="List the shipped scenes with their effects and end time.")
+                            description="List the shipped scenes: name, end time and what each is for "
+                            "(the first sentence of its TOML file's opening comment), then its effects.")
     scenes.set_defaults(func=_cmd_scenes)
     return parser
 
@@ -402,16 +404,37 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_scenes(args: argparse.Namespace) -> int:
-    """``jaxanm scenes``: one line per shipped scene (name, effects, end time)."""
-    from jaxanm.fsw.scene import shipped_scenes
+    """``jaxanm scenes``: per shipped scene, its name, end time and description, then its effects."""
+    from jaxanm.fsw.scene import SCENES_DIR, shipped_scenes
 
     for name in shipped_scenes():
         try:
             scene = _load_scene(name)
         except ValueError as exc:
             raise UsageError(str(exc)) from exc
-        print(f"{name:<24} t_end = {scene.time.t_end:<8g} effects: {', '.join(scene.effects)}")
+        description = scene_description(SCENES_DIR / f"{name}.toml")
+        print(f"{name:<20} {f'{scene.time.t_end:g} s':<8} {description}")
+        print(f"{'':<20} effects: {', '.join(scene.effects)}")
     return 0
+
+
+def scene_description(path, width: int = 130) -> str:
+    """The first sentence of the comment block that opens the scene TOML at ``path``, on one
+    line of at most ``width`` characters (cut at a word, with "..."); ``""`` without one.
+
+    Parenthesised issue references ("(issue 15)") are left out.
+    """
+    lines = []
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
+        if not line.startswith("#"):
+            break
+        lines.append(line.lstrip("#").strip())
+    text = re.sub(r"\s*\((?:issues?|items?) [^)]*\)", "", " ".join(lines)).strip()
+    match = re.match(r"(.+?[.!?])(?=\s+[A-Z(`]|\s*$)", text)  # "V . grad T" is no sentence end
+    sentence = match.group(1) if match else text
+    if len(sentence) > width:
+        sentence = sentence[:width - 3].rsplit(" ", 1)[0].rstrip(",;:") + "..."
+    return sentence
 
 
 def _error(message, status: int) -> int:

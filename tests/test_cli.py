@@ -205,11 +205,41 @@ def test_help_and_version_exit_0(capsys):
     assert capsys.readouterr().out.startswith("jaxanm ")
 
 
+def test_version_is_the_package_version(capsys):
+    """``jaxanm --version`` prints ``jaxanm.__version__``, the version pip installed."""
+    import importlib.metadata
+
+    import jaxanm
+
+    assert cli.main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"jaxanm {jaxanm.__version__}"
+    assert importlib.metadata.version("jaxanm") == jaxanm.__version__
+
+
 def test_scenes_lists_shipped(capsys):
+    """Two lines per shipped scene: name, end time and a description; then its effects."""
     assert cli.main(["scenes"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert [line.split()[0] for line in lines] == list(shipped_scenes())
-    assert all("effects:" in line for line in lines)
+    names, effects = lines[0::2], lines[1::2]
+    assert [line.split()[0] for line in names] == list(shipped_scenes())
+    assert all(line.split()[0] == "effects:" for line in effects)
+    for line in names:
+        name, t_end, unit, *description = line.split()
+        assert unit == "s" and float(t_end) == cli._load_scene(name).time.t_end
+        assert description, f"{name} has no description"
+    assert "The friction-stir-welding example of the paper" in "\n".join(names)
+
+
+def test_scene_description_is_the_first_sentence_of_the_opening_comment(tmp_path):
+    scene = tmp_path / "s.toml"
+    scene.write_text("# A scene for tests (issue 9): V . grad T kept.  Second sentence.\n"
+                     "# More.\nname = 's'\n# not the opening block\n", encoding="utf-8")
+    assert cli.scene_description(scene) == "A scene for tests: V . grad T kept."
+    scene.write_text("# " + "word " * 60 + "\nname = 's'\n", encoding="utf-8")
+    short = cli.scene_description(scene, width=40)
+    assert len(short) <= 40 and short.endswith("word...")
+    scene.write_text("name = 's'\n", encoding="utf-8")
+    assert cli.scene_description(scene) == ""
 
 
 def test_logging_handler_removed_after_main(tiny, tmp_path, fake_run, no_files):
