@@ -25,12 +25,12 @@ no time derivative, and the momentum rows' mass ``rho/mu(x) Phi`` depends on the
 ``solve_ivp`` has no mass-matrix or DAE support, so BDF rows exist only for the
 reaction-diffusion ODE, and the FSW rows record the measured structure of M instead.
 
-Usage (one command per figure/table; see docs/accuracy_cost.md)::
+Usage (one command per figure/table; see benchmarks/results/accuracy_cost.md)::
 
     python benchmarks/accuracy_cost.py --small            # ~35 min on 2 cores under load 10-13
-    python benchmarks/accuracy_cost.py --config paper     # one accuracy point at the paper's dr (~15 min), docs/accuracy_cost_paper_dr.*
+    python benchmarks/accuracy_cost.py --config paper     # one accuracy point at the paper's dr (~15 min), benchmarks/results/accuracy_cost_paper_dr.*
     python benchmarks/accuracy_cost.py                    # full sweep (hours; see docs)
-    python benchmarks/accuracy_cost.py --plot-only        # redraw docs/accuracy_cost.png from the json
+    python benchmarks/accuracy_cost.py --plot-only        # redraw benchmarks/results/accuracy_cost.png from the json
 """
 
 from __future__ import annotations
@@ -48,7 +48,8 @@ import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 CACHE = ROOT / "benchmarks" / ".cache"
-DOCS = ROOT / "docs"
+RESULTS = ROOT / "benchmarks" / "results"
+"""Where the committed benchmark outputs live."""
 
 TOLS_FULL = [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10]
 ORDERS = [3, 5, 7, 10, 15, 20]
@@ -605,8 +606,8 @@ def main(argv=None) -> None:
     ap.add_argument("--config", choices=list(CONFIGS), default=None,
                     help="configuration by name (--small is --config small; default full)")
     ap.add_argument("--problems", default=None, help="comma-separated subset of the configuration's problems")
-    ap.add_argument("--out", default=None, help="JSON output (default docs/accuracy_cost.json, "
-                                                "docs/accuracy_cost_full.json for the full configuration)")
+    ap.add_argument("--out", default=None, help="JSON output (default benchmarks/results/accuracy_cost.json, "
+                                                "benchmarks/results/accuracy_cost_full.json for the full configuration)")
     ap.add_argument("--plot-only", action="store_true", help="redraw the PNG and print the tables from the JSON")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -620,9 +621,9 @@ def main(argv=None) -> None:
         print(json.dumps(res, default=float))
         return
     config = args.config or ("small" if args.small else "full")
-    # docs/accuracy_cost_paper.* is the fsw_tracers front of benchmarks/accuracy_cost_paper.py
+    # benchmarks/results/accuracy_cost_paper.* is the fsw_tracers front of benchmarks/accuracy_cost_paper.py
     default_name = {"small": "accuracy_cost.json", "paper": "accuracy_cost_paper_dr.json"}
-    out = pathlib.Path(args.out) if args.out else DOCS / default_name.get(config, f"accuracy_cost_{config}.json")
+    out = pathlib.Path(args.out) if args.out else RESULTS / default_name.get(config, f"accuracy_cost_{config}.json")
     if not args.plot_only:
         problems = args.problems.split(",") if args.problems else list(CONFIGS[config]["problems"])
         sweep(config, problems, out)

@@ -1,4 +1,4 @@
-"""The accuracy-cost tables quoted by docs/accuracy_cost_paper.md, from one `jaxanm sweep` of a committed grid.
+"""The accuracy-cost tables quoted by benchmarks/results/accuracy_cost_paper.md, from one `jaxanm sweep` of a committed grid.
 
 Nothing is computed here: every number comes from the sweep directory of
 ``benchmarks/grids/accuracy_cost_tracers.toml`` (or ``accuracy_cost_lagrangian.toml``), which
@@ -6,7 +6,7 @@ runs every configuration, the Richardson reference and its estimated error, and 
 task against it at the common save times (:mod:`jaxanm.sweep`; read the grid's header)::
 
     jaxanm sweep benchmarks/grids/accuracy_cost_tracers.toml --workers 1 --out results/sweep-accuracy_cost_tracers
-    python benchmarks/accuracy_cost_paper.py results/sweep-accuracy_cost_tracers --out docs/accuracy_cost_tracers
+    python benchmarks/accuracy_cost_paper.py results/sweep-accuracy_cost_tracers --out benchmarks/results/accuracy_cost_tracers
 
 It replaces the loop that measured the doc's first table (commit 29c1f02): that loop's IDA
 run, reference and error measures now live in :mod:`jaxanm.fsw.ida_scene`,

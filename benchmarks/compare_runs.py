@@ -5,7 +5,7 @@ can run at the same time, one per core)::
 
     jaxanm run fsw_paper --out runs/anm
     jaxanm run fsw_paper --solver newton --out runs/newton --checkpoint-every 200
-    python benchmarks/compare_runs.py runs/anm runs/newton --out docs/fsw_paper_anm_vs_newton
+    python benchmarks/compare_runs.py runs/anm runs/newton --out benchmarks/results/fsw_paper_anm_vs_newton
 
 For every directory it reads ``summary.json`` (solver, factorisations, Newton iterations,
 time steps, the wall-time split) and prints one row per run with the ratios to the first run.

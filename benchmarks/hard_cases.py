@@ -23,7 +23,7 @@ step residual of the full step is not the one solved; the halving case checks it
 against the quasi-static equation instead (see :func:`forced_halving`).
 
 Run ``python benchmarks/hard_cases.py --write`` to print the table and put it into
-``docs/hard_cases.md`` (between its table markers; ``--fast`` runs only the test-suite cases);
+``benchmarks/results/hard_cases.md`` (between its table markers; ``--fast`` runs only the test-suite cases);
 ``tests/test_hard_cases.py`` runs the same cases and asserts their outcomes.
 """
 
@@ -62,7 +62,7 @@ TINY = {"geometry.dr": "1.125e-3", "time.save": "", "geometry.c": "0.2"}
 weight c = 0.2 (the outcomes below were established with it).  At the scenes' c = 0.3 on this
 coarse cloud, Newton no longer converges from rest for n = 0.05, lambda/mu_ref = 1e8, T0 = 800 K
 and eps0 = 1e-9 (StepFailure after 4 halvings; the ANM too for lambda/mu_ref = 1e8), while the
-points at 0.1 dr converge (measured 2026-11-22; docs/hard_cases.md)."""
+points at 0.1 dr converge (measured 2026-11-22; benchmarks/results/hard_cases.md)."""
 
 
 @dataclasses.dataclass
@@ -406,7 +406,7 @@ def table(outcomes) -> str:
 
 
 def main(argv=None) -> int:
-    """Run every case (``--fast``: the test-suite ones), print the table; ``--write`` also puts it into docs/hard_cases.md."""
+    """Run every case (``--fast``: the test-suite ones), print the table; ``--write`` also puts it into benchmarks/results/hard_cases.md."""
     argv = sys.argv[1:] if argv is None else argv
     outcomes = []
     for key, (fast, make) in CASES.items():
@@ -419,7 +419,7 @@ def main(argv=None) -> int:
     text = table(outcomes)
     print(text)
     if "--write" in argv:
-        write_table(ROOT / "docs" / "hard_cases.md", text)
+        write_table(ROOT / "benchmarks" / "results" / "hard_cases.md", text)
     return 0
 
 

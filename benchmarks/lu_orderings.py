@@ -20,7 +20,7 @@ Variants:
 - PARDISO (``pip install pypardiso``, which pulls MKL: a 229 MB wheel, 718 MB installed, and
   intel-openmp, 50 MB), if importable; it uses the machine's threads.
 
-    python benchmarks/lu_orderings.py [--repeats 7] [--order 7] [--out docs/lu_orderings]
+    python benchmarks/lu_orderings.py [--repeats 7] [--order 7] [--out benchmarks/results/lu_orderings]
 """
 
 from __future__ import annotations
@@ -197,7 +197,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--order", type=int, default=7)
-    ap.add_argument("--out", default=str(profile_host_step.DOCS / "lu_orderings"))
+    ap.add_argument("--out", default=str(profile_host_step.RESULTS / "lu_orderings"))
     ap.add_argument("--note", default="")
     args = ap.parse_args()
     A, point_pattern, n_fields = fsw_paper_tangent()

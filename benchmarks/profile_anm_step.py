@@ -12,7 +12,7 @@ dr = 7.5e-4, 717 unknowns, warm state after 10 steps) and on the reaction-diffus
    hence O(p^3) per series;
 4. compile time of the series function per order.
 
-    python benchmarks/profile_anm_step.py [--orders 3,5,7] [--problem fsw_reduced|rd] [--out docs/profile_anm_step.json]
+    python benchmarks/profile_anm_step.py [--orders 3,5,7] [--problem fsw_reduced|rd] [--out benchmarks/results/profile_anm_step.json]
 """
 
 from __future__ import annotations
@@ -118,7 +118,7 @@ def main(argv=None) -> None:
     result["run"] = run
     result["series"] = series_dissection(prob, x0, [int(p) for p in args.orders.split(",")])
     result["loadavg_end"] = os.getloadavg()
-    out = pathlib.Path(args.out) if args.out else ac.DOCS / f"profile_anm_step_{args.problem}.json"
+    out = pathlib.Path(args.out) if args.out else ac.RESULTS / f"profile_anm_step_{args.problem}.json"
     out.write_text(json.dumps(result, indent=1, default=float))
     print(f"wrote {out}")
 

@@ -9,8 +9,8 @@ This script
 2. times each part of one host step separately on that state, and the whole hook, as medians
    of wall and process CPU time over ``--repeats`` calls (each on a copy of the recorder, so
    every call is the same step);
-3. prints a table and writes ``docs/profile_host_step.json`` (one entry per ``--label``, earlier
-   labels kept) and ``docs/profile_host_step.md`` (every label side by side).
+3. prints a table and writes ``benchmarks/results/profile_host_step.json`` (one entry per ``--label``, earlier
+   labels kept) and ``benchmarks/results/profile_host_step.md`` (every label side by side).
 
     python benchmarks/profile_host_step.py --label before
 
@@ -45,7 +45,8 @@ except ImportError:  # an older checkout: the hook was simulate._Recorder
     from jaxanm.fsw import simulate as sim
     Hook = sim._Recorder
 
-DOCS = pathlib.Path(__file__).resolve().parent.parent / "docs"
+RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+"""Where the committed benchmark outputs live."""
 
 
 def warm_state(steps: int = 3, scene_name: str = "fsw_paper"):
@@ -416,8 +417,8 @@ def _table(data: dict, labels: list, key: str) -> list:
 
 
 def write(label: str, parts: dict, cpu: dict, meta: dict) -> None:
-    """Merge this label into docs/profile_host_step.json and rewrite the markdown tables."""
-    path = DOCS / "profile_host_step.json"
+    """Merge this label into benchmarks/results/profile_host_step.json and rewrite the markdown tables."""
+    path = RESULTS / "profile_host_step.json"
     data = json.loads(path.read_text()) if path.is_file() else {}
     data[label] = {"parts_ms": parts, "parts_cpu_ms": cpu, **meta}
     path.write_text(json.dumps(data, indent=1) + "\n")
@@ -444,7 +445,7 @@ def write(label: str, parts: dict, cpu: dict, meta: dict) -> None:
     notes = [data[lab].get("note") for lab in labels if data[lab].get("note")]
     if notes:
         lines += [""] + [f"- {lab}: {data[lab]['note']}" for lab in labels if data[lab].get("note")]
-    (DOCS / "profile_host_step.md").write_text("\n".join(lines) + "\n\n" + CHANGES)
+    (RESULTS / "profile_host_step.md").write_text("\n".join(lines) + "\n\n" + CHANGES)
 
 
 def main() -> None:
@@ -474,7 +475,7 @@ def main() -> None:
     load = f"{load_before[0]:.2f} -> {load_after[0]:.2f}"
     print(f"load average (1 min): {load}")
     if not args.no_write:
-        commit = args.commit or os.popen("git -C " + str(DOCS.parent) + " rev-parse --short HEAD").read().strip()
+        commit = args.commit or os.popen("git -C " + str(RESULTS.parent.parent) + " rev-parse --short HEAD").read().strip()
         write(args.label, parts, cpu, {"date": datetime.date.today().isoformat(), "loadavg": load,
                                   "repeats": args.repeats, "commit": commit, "note": args.note})
 

@@ -10,14 +10,14 @@ subprocess (its own ``ru_maxrss``) and measures, median over repeats, compile ex
 - peak resident memory of the process (``ru_maxrss``; JAX runtime and compiler included).
 
 Time per step of each method is then *composed* from these component costs and the counts per
-step measured on the reduced scene in ``docs/accuracy_cost.json`` (``--counts-from``):
+step measured on the reduced scene in ``benchmarks/results/accuracy_cost.json`` (``--counts-from``):
 Newton: iterations x (residual + Jacobian + factorisation + solve); modified Newton and ANM:
 their measured factorisations, series evaluations, residual evaluations and solves per step.
 (Real steps at dr/2 and dr/4 would first need the impulsive start, 50+ factorisations at dr:
 too long for the time box; the composition is the stated model, not a measured full step.)
 Growth exponents are least-squares slopes of log(cost) against log(N).
 
-    python benchmarks/scaling.py [--levels 2|3] [--repeats 5] [--out docs/scaling.json]
+    python benchmarks/scaling.py [--levels 2|3] [--repeats 5] [--out benchmarks/results/scaling.json]
 """
 
 from __future__ import annotations
@@ -140,8 +140,8 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--levels", type=int, default=2, help="2: dr, dr/2; 3: also dr/4 (~13.5k points)")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--counts-from", default=str(ROOT / "docs" / "accuracy_cost.json"))
-    ap.add_argument("--out", default=str(ROOT / "docs" / "scaling.json"))
+    ap.add_argument("--counts-from", default=str(ROOT / "benchmarks" / "results" / "accuracy_cost.json"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "scaling.json"))
     ap.add_argument("--compose-only", action="store_true",
                     help="reuse the levels already in --out; recompute exponents and composed per-step costs")
     ap.add_argument("--worker", type=float, default=None, help=argparse.SUPPRESS)

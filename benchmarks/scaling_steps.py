@@ -23,7 +23,7 @@ Exponents are least-squares slopes of log(cost) against log(N) over the levels t
 
     python benchmarks/scaling_steps.py --divisors 1 2 4 8 --solvers anm mnewton --steps 10 --start quasi_static
 
-Writes ``docs/scaling_steps.{json,md,png}`` (``--out``).  Runs go one after the other; quote the
+Writes ``benchmarks/results/scaling_steps.{json,md,png}`` (``--out``).  Runs go one after the other; quote the
 load printed beside each (two shared cores).
 """
 
@@ -185,7 +185,7 @@ def main(argv=None) -> None:
     ap.add_argument("--solvers", nargs="+", default=["anm", "mnewton"], choices=sorted(SOLVER_KINDS))
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds before a run is stopped")
-    ap.add_argument("--out", default=str(ROOT / "docs" / "scaling_steps"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "scaling_steps"))
     ap.add_argument("--report-only", action="store_true",
                     help="rebuild the exponents, table and plot from the runs already in OUT.json (e.g. after stopping)")
     ap.add_argument("--start", default="rest", choices=("rest", "quasi_static"),

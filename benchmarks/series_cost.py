@@ -10,7 +10,7 @@ Lagrangian run (``benchmarks/profile_host_step.warm_state``):
 - ``exact``: one jet per order at every order (what the ANM did from 2026-12-02 until the
   ladder; the same as ``ladder`` up to EXACT_TERMS).
   (The zero-padded single jet the fixed-order ANM used before is no longer in the
-  engine; its rows in docs/series_cost.md were measured with commit cb06729.)
+  engine; its rows in benchmarks/results/series_cost.md were measured with commit cb06729.)
 
 Each variant: the compile time of all the jets one series needs, and the time of the p - 1
 calls of one series.
@@ -21,7 +21,7 @@ affine part of the residual outside jet (``jaxanm.series.AffinePath``).  The pat
 are random (scaled like the unknowns): the cost does not depend on their values.  Times are
 medians over ``--repeats`` series; ``os.getloadavg()`` is recorded beside them.
 
-    python benchmarks/series_cost.py [--orders 5,7,10,15,20] [--out docs/series_cost]
+    python benchmarks/series_cost.py [--orders 5,7,10,15,20] [--out benchmarks/results/series_cost]
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def main(argv=None) -> int:
     ap.add_argument("--homotopies", default="convex,newton")
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--warm", type=int, default=3)
-    ap.add_argument("--out", default=str(HERE.parent / "docs" / "series_cost"))
+    ap.add_argument("--out", default=str(HERE / "results" / "series_cost"))
     ap.add_argument("--one", help=argparse.SUPPRESS)  # "order,mode,homotopy": run one variant here
     a = ap.parse_args(argv)
     if a.one:

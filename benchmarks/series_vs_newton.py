@@ -17,7 +17,7 @@ the solves each method's own acceptance uses at ``--tol`` (modified Newton: unti
 ``|dx| <= tol |x|``; the order-adaptive ANM: the first order whose a_max reaches 1, plus the
 end-point check's solve) and the true error of what it accepts.
 
-    python benchmarks/series_vs_newton.py [--dt 1e-4] [--steps 150,400] [--orders 12] [--out docs/series_vs_newton_dt1e-4]
+    python benchmarks/series_vs_newton.py [--dt 1e-4] [--steps 150,400] [--orders 12] [--out benchmarks/results/series_vs_newton_dt1e-4]
 
 Writes ``OUT.json``, ``OUT.md`` and ``OUT.png`` with ``--out``.
 """

@@ -26,7 +26,7 @@ the errors against it.
 Every run's raw record is kept in ``--cache`` (one JSON per run, reused when present: delete
 it to re-run); ``--analyse-only`` redraws the table from the cache.
 
-    nice -n 10 python benchmarks/spatial_convergence.py --out docs/spatial_convergence
+    nice -n 10 python benchmarks/spatial_convergence.py --out benchmarks/results/spatial_convergence
 
 Writes ``OUT.json``, ``OUT.md`` and ``OUT.png``.
 """

@@ -13,7 +13,7 @@ Usage::
 
     python benchmarks/table1.py                       # [0, 0.7] s, every order (hours)
     python benchmarks/table1.py --t-end 0.02 --scene fsw_paper --orders 5 7 10
-    python benchmarks/table1.py --out docs/table1     # writes docs/table1.{md,json}
+    python benchmarks/table1.py --out benchmarks/results/table1     # writes benchmarks/results/table1.{md,json}
 
 The paper's first column is unlabelled in the text (p = 5 or 7, see DESIGN §3); its four
 columns are 0.0175 / 0.0185 / 0.0209 / 0.0209 s and 46 / 43 / 39 / 39 steps.

@@ -15,7 +15,7 @@ points, followed as they move): ``max |T - T_ref| / max (T_ref - T0)`` and
 ``max |V - V_ref| / (omega R1)``.  Wall and process (CPU) times are recorded with the load;
 every run starts with a short compiling run of the same configuration in the same process.
 
-    python benchmarks/time_steps.py --scene fsw_tracers --t-end 0.05 --out docs/time_steps_fsw_tracers
+    python benchmarks/time_steps.py --scene fsw_tracers --t-end 0.05 --out benchmarks/results/time_steps_fsw_tracers
 
 Writes ``OUT.json``, ``OUT.md`` and ``OUT.png`` (error against CPU time).
 """

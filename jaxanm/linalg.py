@@ -29,7 +29,7 @@ from .stats import Stats
 # 6.4 ms, with the same relative residual (3.5e-20 against 3.3e-20).  COLAMD: 1.89e6, 195 ms;
 # MMD_AT_PLUS_A with partial pivoting: 2.0e6 (its pivots leave the diagonal), 160 ms; KLU and
 # MKL's PARDISO (PyPI wheels): 124 and 70 ms (PARDISO's 7 solves 38 ms); a reverse
-# Cuthill-McKee renumbering of the points gains at most 1-2 ms more (docs/lu_orderings.md,
+# Cuthill-McKee renumbering of the points gains at most 1-2 ms more (benchmarks/results/lu_orderings.md,
 # medians back to back, load 1-2.4).  The MLS value matrix of the Lagrangian refit
 # factorises faster too (0.93e5 non-zeros against 1.21e5).  An exactly singular factor raises.
 #

@@ -145,7 +145,7 @@ def _rise_error(scene, t_end: float) -> float:
 def test_graded_cloud_beats_the_uniform_one_beyond_its_point_count():
     """fsw_graded against fsw_tracers (the same physics on the paper's 881 uniform points) over
     10 ms (about 1 min).  The uniform cloud's rise error falls at first order in the spacing
-    (slope 0.7-0.9, docs/spatial_convergence.md), so spending the graded cloud's 1603 points
+    (slope 0.7-0.9, benchmarks/results/spatial_convergence.md), so spending the graded cloud's 1603 points
     uniformly would divide it by at most sqrt(1603 / 881) = 1.35; the grading must do clearly
     better: at least 2x (measured 0.130 -> 0.039)."""
     graded = _rise_error(load_scene("fsw_graded"), 0.01)

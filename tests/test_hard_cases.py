@@ -1,7 +1,7 @@
 """Hard cases stay numerically stable (issue 6): a finite, checked solution or a named error.
 
 The cases live in ``benchmarks/hard_cases.py`` (which also writes the table of
-docs/hard_cases.md); here the fast ones run and their outcomes are asserted:
+benchmarks/results/hard_cases.md); here the fast ones run and their outcomes are asserted:
 
 - converged cases pass the independent check of that module: the Newton distance
   ``|J(x)^-1 R(x)|`` of the accepted state, by a dense ``jax.jacfwd`` Jacobian, is within ten

@@ -219,7 +219,7 @@ def test_committed_grids_read():
     assert table1.base.name == "fsw_paper" and table1.tasks[0].scene.time.t_end == 0.7
     demo = read_grid(root / "couette_demo.toml")
     assert len(demo.tasks) == 4 and demo.reference in {t.id for t in demo.tasks}
-    # the configurations of docs/accuracy_cost_paper.json (30 rows, 5 of them IDA) and the Lagrangian front
+    # the configurations of benchmarks/results/accuracy_cost_paper.json (30 rows, 5 of them IDA) and the Lagrangian front
     tracers = read_grid(root / "accuracy_cost_tracers.toml")
     assert len(tracers.tasks) == 30 and sum(t.ida is not None for t in tracers.tasks) == 5 and tracers.warmup
     assert tracers.richardson.dt == 5e-5 and tracers.base.name == "fsw_tracers"

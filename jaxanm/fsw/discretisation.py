@@ -198,7 +198,7 @@ class Refit:
     6.9 and one every 4 steps with the previous start and ``refresh`` = 6 (0.22 ms a solve,
     2.5-5 ms a factorisation), each result within 3e-15 of the direct solve's (per field,
     relative to max |x|).  Before: a SuperLU factorisation every step
-    (docs/profile_host_step.md).
+    (benchmarks/results/profile_host_step.md).
 
     Pickles as the factorised matrix (the factors are remade from it on load, bit-identically,
     so a resumed run refits exactly as an uninterrupted one).

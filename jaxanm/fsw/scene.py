@@ -111,7 +111,7 @@ MAX_STEPS = 10_000_000
 """Largest number of time steps ``t_end / dt`` a scene may ask for."""
 MAX_ORDER = 30
 """Largest ANM series order a scene may ask for (the jet series compiles in a time that grows
-steeply with the order: docs/hard_cases.md)."""
+steeply with the order: benchmarks/results/hard_cases.md)."""
 MAX_SAMPLES = 100_000
 """Largest number of samples of a registration section."""
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-.+")

@@ -95,7 +95,7 @@ def spatial_accuracy(result) -> dict | None:
       about a second of 1-D solve): ``rel_l2``, ``mean_ratio``, ``max_abs_K``, ``t``.
 
     At fsw_paper's dr the band is 0.28 points wide and the rise 15-18 % too high
-    (docs/spatial_convergence.md).
+    (benchmarks/results/spatial_convergence.md).
     """
     from jaxanm.fsw import axisymmetric, geometry
     from jaxanm.fsw.scene import Scene
