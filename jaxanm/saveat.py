@@ -40,6 +40,8 @@ class SaveAt:
     params : bool
         Also keep ``params`` at the saved times (e.g. moving point clouds).
 
+    Notes
+    -----
     A host hook that keeps its own records at the saved steps (the FSW recorder) asks the same
     object: :meth:`times` gives the end times of the saved steps as the loop computes them.
     """
