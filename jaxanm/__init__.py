@@ -9,6 +9,8 @@ global configuration; wrap your own jnp code in ``with jaxanm.float64():`` to ma
 """
 
 from ._x64 import float64
+from .bordered import ContinuationFailure
+from .continuation import Branch, BranchPoints, continuation, newton_continuation
 from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
 from .integrate import Remap, SensitivityMethod, Solution, integrate
 from .jacobian import SparseJacobian, color_columns, detect_sparsity
@@ -22,6 +24,9 @@ from .step_control import StepController
 
 __all__ = [
     "ANM",
+    "Branch",
+    "BranchPoints",
+    "ContinuationFailure",
     "Factorization",
     "ForwardSensitivity",
     "InputError",
@@ -41,11 +46,13 @@ __all__ = [
     "StepFailure",
     "StepSolver",
     "color_columns",
+    "continuation",
     "detect_sparsity",
     "evaluate_series",
     "factorize",
     "float64",
     "integrate",
+    "newton_continuation",
     "sensitivities",
     "taylor_coefficients",
     "validity_range",

@@ -1,0 +1,336 @@
+"""The extended system of a one-parameter family ``R(u, lam) = 0`` and its bordered matrix.
+
+Path following (:mod:`jaxanm.continuation`) sees n equations in the n + 1 unknowns
+``U = (u, lam)``.  At a point it factorises the bordered (n + 1) x (n + 1) matrix
+
+    B = [[R_u, R_lam],
+         [ w^T      ]]
+
+(R_u by ``jax.jacfwd`` or the coloured :class:`~jaxanm.SparseJacobian`, R_lam by a ``jvp``,
+``w`` a border row), through the one counted factorisation of the project
+(:func:`jaxanm.linalg.factorize`, or a hook).  B stays regular at limit points, where R_u is
+singular, as long as ``w`` is not orthogonal to the branch's tangent.  Its kernel vector
+``z = B^-1 e_(n+1)`` spans the tangent (``R_U z = 0``, ``w.z = 1``), so any constraint
+``<v, dU> = c`` is imposed afterwards on a solution of B by adding a multiple of ``z``:
+the border used for factorising need not be the one a series or a correction wants, and
+one factorisation per point serves the tangent, every series order and the correction.
+
+Norms and inner products are on the scaled unknowns ``U / scale`` (``scale`` has n + 1
+entries, lam's last), so that velocity-like and temperature-like unknowns and the
+parameter count alike in the arclength.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse
+
+from .errors import InputError, SingularMatrixError, StepFailure, _number
+from .integrate import jacobian_kind, on_device, params_float64
+from .jacobian import detect_sparsity
+from .linalg import factorize as counted_factorize
+from .series import AffinePath
+from .solvers import Problem, _affine_functions, _residual_function, _series_function
+from .stats import Stats
+
+START_ITERATIONS = 20
+"""Newton iterations at fixed lam allowed to bring ``u0`` onto the branch (:func:`corrected_start`)."""
+
+
+class ContinuationFailure(StepFailure):
+    """A continuation step failed: a :class:`~jaxanm.StepFailure` located by the step and the
+    parameter ``lam`` there (also in ``t``, for code that handles time steps)."""
+
+    def __init__(self, reason: str, *, step: int, lam: float, amax=None, residual_norm=None):
+        super().__init__(reason, step=step, t=lam, amax=amax, residual_norm=residual_norm)
+        self.lam = float(lam)
+        self.args = (f"continuation step {step} (lam = {self.lam:.8g}): {reason}; a_max = {_number(self.amax)}, "
+                     f"|R|_inf = {_number(self.residual_norm)}",)
+
+
+@functools.lru_cache(maxsize=64)
+def joint_function(residual):
+    """``(U, params) -> residual(U[:-1], U[-1], params)``: the residual of the unknowns and the
+    parameter together, the function the series expands (one object per residual, so that
+    compiled jets are found again)."""
+    return lambda U, params: residual(U[:-1], U[-1], params)
+
+
+@functools.lru_cache(maxsize=64)
+def _step_form(residual):
+    """The residual in the step solvers' signature ``(x, x_old, t, dt, params)``, lam in ``t``:
+    :class:`~jaxanm.solvers.Problem` then builds R_u (dense or sparse) as it does for K*."""
+    return lambda x, x_old, t, dt, params: residual(x, t, params)
+
+
+@functools.lru_cache(maxsize=64)
+def _value_and_dlam(residual):
+    """Jitted ``(u, lam, params) -> (R, dR/dlam)``: one ``jvp`` gives both."""
+    return jax.jit(lambda u, lam, params: jax.jvp(lambda l: residual(u, l, params), (lam,), (jnp.ones_like(lam),)))
+
+
+def _scale_vector(scale, n: int) -> np.ndarray:
+    """``scale`` as n + 1 positive entries (u's, then lam's)."""
+    s = np.asarray(1.0 if scale is None else scale, dtype=np.float64)
+    if s.ndim == 0:
+        s = np.append(np.full(n, float(s)), 1.0)
+    elif s.shape == (n,):
+        s = np.append(s, 1.0)
+    elif s.shape != (n + 1,):
+        raise InputError(f"scale must be a float, an array of shape ({n},) (u) or ({n + 1},) (u, then lam), "
+                         f"got shape {s.shape}")
+    if not np.all(np.isfinite(s) & (s > 0)):
+        raise InputError("scale must be positive and finite: a characteristic magnitude per unknown")
+    return s
+
+
+def _finite_number(name, value, fix):
+    """``value`` as a float if it is a finite real scalar, else :class:`InputError`."""
+    real = (np.ndim(value) == 0 and not isinstance(value, (bool, np.bool_, str, bytes))
+            and np.isrealobj(value) and np.issubdtype(np.asarray(value).dtype, np.number))
+    if not (real and math.isfinite(float(value))):
+        raise InputError(f"{name} must be a finite real number, got {value!r}; {fix}")
+    return float(value)
+
+
+def check_inputs(residual, u0, lam0, params, *, lam_end, stop_at, max_steps, tol, scale, jacobian,
+                 sparsity, direction, factorize):
+    """Check what both path followers take, before any computation (:class:`InputError` naming
+    the argument and the fix).  Returns ``(U0, scale (n + 1,), ends)``, ``ends`` the list of
+    ``(index into U, value)`` where the branch stops."""
+    if not callable(residual):
+        raise InputError(f"residual must be a callable residual(u, lam, params) -> (n,), got {residual!r}")
+    try:
+        u0 = np.asarray(u0, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"u0 must be a non-empty 1-D array of real numbers ({exc})") from exc
+    if u0.ndim != 1 or u0.size == 0:
+        raise InputError(f"u0 must be a non-empty 1-D array of unknowns, got shape {u0.shape}; flatten it")
+    if not np.all(np.isfinite(u0)):
+        raise InputError(f"u0 has {int(np.sum(~np.isfinite(u0)))} non-finite entries; give a finite starting point")
+    n = u0.size
+    lam0 = _finite_number("lam0", lam0, "the parameter at the starting point")
+    ends = []
+    if lam_end is not None:
+        lam_end = _finite_number("lam_end", lam_end, "or None to stop after max_steps")
+        if lam_end == lam0:
+            raise InputError(f"lam_end equals lam0 = {lam0!r}: the branch would stop where it starts")
+        ends.append((n, lam_end))
+    if stop_at is not None:
+        if not (isinstance(stop_at, tuple) and len(stop_at) == 2 and isinstance(stop_at[0], (int, np.integer))
+                and -n <= stop_at[0] < n):
+            raise InputError(f"stop_at must be a pair (index of u in [0, {n}), value), got {stop_at!r}")
+        index = int(stop_at[0]) % n
+        value = _finite_number("stop_at[1]", stop_at[1], "the value of u[index] where the branch stops")
+        if value == u0[index]:
+            raise InputError(f"stop_at: u0[{index}] already equals {value!r}; the branch would stop where it starts")
+        ends.append((index, value))
+    if not (isinstance(max_steps, (int, np.integer)) and not isinstance(max_steps, bool) and max_steps >= 1):
+        raise InputError(f"max_steps must be an integer >= 1, got {max_steps!r}")
+    if not (isinstance(tol, (int, float, np.floating)) and math.isfinite(tol) and 0 < tol < 1):
+        raise InputError(f"tol must be a float in (0, 1), got {tol!r}; e.g. tol=1e-8")
+    if jacobian not in ("auto", "dense", "sparse"):
+        raise InputError(f"jacobian must be 'auto', 'dense' or 'sparse', got {jacobian!r}")
+    if sparsity is not None and not (callable(sparsity) or scipy.sparse.issparse(sparsity)):
+        raise InputError("sparsity must be a scipy sparse (n, n) pattern of R_u, a callable params -> pattern, or None")
+    if scipy.sparse.issparse(sparsity) and sparsity.shape != (n, n):
+        raise InputError(f"sparsity must have the shape of R_u, ({n}, {n}), got {sparsity.shape}")
+    if direction not in (1, -1):
+        raise InputError(f"direction must be +1 (towards increasing lam) or -1, got {direction!r}")
+    if factorize is not None and not callable(factorize):
+        raise InputError(f"factorize must be None or a callable (matrix, stats) -> object with solve(rhs), got {factorize!r}")
+    _check_output(residual, u0, lam0, params)
+    return np.append(u0, lam0), _scale_vector(scale, n), ends
+
+
+def _check_output(residual, u0, lam0, params):
+    """The residual traces and returns shape (n,) (abstract evaluation: nothing is computed)."""
+    with jax.enable_x64(True):
+        try:
+            out = jax.eval_shape(residual, jnp.asarray(u0), jnp.float64(lam0), params)
+        except Exception as exc:  # noqa: BLE001 - any tracing error is a problem of the input
+            raise InputError(f"residual(u0, lam0, params) could not be traced by JAX ({exc!r}); write it in "
+                             "jax.numpy with signature residual(u, lam, params)") from exc
+    if getattr(out, "shape", None) != u0.shape:
+        raise InputError(f"residual(u, lam, params) must return an array of shape {u0.shape} (one equation per "
+                         f"unknown of u), got {getattr(out, 'shape', type(out).__name__)}")
+
+
+class Linearisation:
+    """The bordered matrix factorised at ``point`` (border row ``row``), with the residual
+    there (``residual``), the top block ``[R_u, R_lam]`` for products (``jacobian``, ``dlam``)
+    and the kernel vector ``z`` (``B z = e_(n+1)``)."""
+
+    def __init__(self, point, residual, jacobian, dlam, row, fact):
+        self.point, self.residual, self.jacobian, self.dlam, self.row = point, residual, jacobian, dlam, row
+        self.fact = fact
+        last = np.zeros(point.size)
+        last[-1] = 1.0
+        self.z = np.asarray(fact.solve(last))
+
+    def solve(self, top, last: float = 0.0) -> np.ndarray:
+        """``B^-1 [top; last]``."""
+        return np.asarray(self.fact.solve(np.append(top, last)))
+
+    def constrained(self, top, v, value: float = 0.0) -> np.ndarray:
+        """The solution ``x`` of ``R_U x = top`` with ``v . x = value`` (``v`` a row, e.g. a
+        scaled tangent): a solution of B plus the multiple of ``z`` that meets the constraint."""
+        y = self.solve(top)
+        return y + ((value - v @ y) / (v @ self.z)) * self.z
+
+    def times(self, x) -> np.ndarray:
+        """``R_U x = R_u x[:-1] + R_lam x[-1]`` (host product with the assembled tangent)."""
+        return self.jacobian @ x[:-1] + self.dlam * x[-1]
+
+
+class ExtendedSystem:
+    """``R(U) = 0`` for ``U = (u, lam)``: residuals, linearisations (bordered, factorised,
+    counted in ``stats``) and the series of the residual along a path.  ``factorize``: the
+    hook ``(matrix, stats) -> object with solve(rhs)`` (default :func:`jaxanm.linalg.factorize`)."""
+
+    def __init__(self, residual, U0, params, scale, jacobian: str, sparsity, stats: Stats, factorize=None):
+        n = U0.size - 1
+        self.n, self.scale, self.stats = n, scale, stats
+        self.params = on_device(params_float64(params))
+        self._residual = residual
+        self._factorize = counted_factorize if factorize is None else factorize
+        self._fact = None
+        kind = jacobian_kind(jacobian, sparsity, n)
+        if kind == "sparse" and sparsity is None:
+            sparsity = self._detected_pattern(U0)
+        self.kind = kind
+        self._problem = Problem(_step_form(residual), scale[:-1], stats, kind, sparsity)
+
+    def _detected_pattern(self, U0):
+        """R_u's pattern from dense probes around ``U0``, at two values of lam: an entry with a
+        factor lam vanishes at lam = 0."""
+        step = _step_form(self._residual)
+        lam = U0[-1]
+        probes = [detect_sparsity(step, U0[:-1], None, np.float64(l), None, self.params)
+                  for l in (lam, lam + 0.1 * (1.0 + abs(lam)))]
+        return (probes[0] + probes[1]).astype(bool).tocsc()
+
+    def dot(self, a, b) -> float:
+        """Inner product of the scaled unknowns."""
+        return float(np.dot(a / self.scale, b / self.scale))
+
+    def norm(self, v) -> float:
+        """2-norm of the scaled unknowns."""
+        return float(np.linalg.norm(v / self.scale))
+
+    def tangent_row(self, t) -> np.ndarray:
+        """The border row of the constraint ``<t, dU> = c`` in the scaled inner product."""
+        return t / self.scale**2
+
+    def axis_row(self, index: int, sign: float = 1.0) -> np.ndarray:
+        """The border row fixing ``U[index]`` (``sign``: the direction its kernel vector takes)."""
+        row = np.zeros(self.n + 1)
+        row[index] = sign
+        return row
+
+    def residual(self, U) -> np.ndarray:
+        """``R(u, lam)`` on the host (counted)."""
+        with self.stats.timer("series"):
+            r = np.asarray(_residual_function(self._residual)(U[:-1], np.float64(U[-1]), self.params))
+        self.stats.residual_evaluations += 1
+        return r
+
+    def linearise(self, U, row, *, step: int) -> Linearisation:
+        """R, R_u, R_lam at ``U``, the bordered matrix with ``row`` factorised (the previous
+        factors released first: one LU alive); :class:`ContinuationFailure` when R is not finite
+        or B cannot be factorised."""
+        st = self.stats
+        with st.timer("jacobian"):
+            r, dlam = (np.asarray(v) for v in _value_and_dlam(self._residual)(U[:-1], np.float64(U[-1]), self.params))
+        st.residual_evaluations += 1
+        r_norm = float(np.max(np.abs(r)))
+        if not (np.isfinite(r_norm) and np.all(np.isfinite(dlam))):
+            raise ContinuationFailure("residual or dR/dlam not finite", step=step, lam=U[-1], residual_norm=r_norm)
+        jac = self._problem.tangent(U[:-1], None, np.float64(U[-1]), None, self.params)
+        if self._fact is not None and hasattr(self._fact, "release"):
+            self._fact.release()
+        try:
+            self._fact = self._factorize(_bordered(jac, dlam, row), st)
+        except SingularMatrixError as exc:
+            raise ContinuationFailure(f"bordered matrix cannot be factorised ({exc})", step=step, lam=U[-1],
+                                      residual_norm=r_norm) from exc
+        return Linearisation(U, r, jac, dlam, row, self._fact)
+
+    def path(self, point, max_terms: int) -> "PathSeries":
+        """The residual's series along a path from ``point`` (:class:`PathSeries`)."""
+        return PathSeries(self, point, max_terms)
+
+
+def _bordered(jac, dlam, row):
+    """``[[R_u, R_lam], [row]]``: CSC when R_u is sparse, else a dense array."""
+    if scipy.sparse.issparse(jac):
+        column = scipy.sparse.csc_matrix(dlam[:, None])
+        corner = scipy.sparse.csc_matrix(row[None, -1:])
+        return scipy.sparse.bmat([[jac, column], [scipy.sparse.csc_matrix(row[None, :-1]), corner]], format="csc")
+    return np.block([[np.asarray(jac), dlam[:, None]], [row[None, :]]])
+
+
+class PathSeries:
+    """Right-hand sides of the series of ``R(U(a)) = 0``, ``U(a) = U_s + sum a^k U_k``: after
+    :meth:`next` is given ``U_k``, it returns ``F_(k+1)``, the coefficient of ``a^(k+1)`` of R
+    along the path truncated at k (so that order k + 1 reads ``R_U U_(k+1) = -F_(k+1)``).
+
+    The jets come from :class:`~jaxanm.series.AffinePath` (affine part outside jet, one
+    compilation per rung of its ladder, shared by every step of every branch with this
+    residual and shapes): with ``lookahead`` it returns the coefficient of order k + 1 along
+    the path with the provisional ``U_(k+1) = U_k``, which is ``F_(k+1) + R_U U_k``; the
+    linear term is taken off by a product with the assembled tangent (exact, whatever solved
+    for ``U_k``).  A residual that cannot be split gets a jet of the whole residual with a
+    zero last term, compiled per number of terms.
+    """
+
+    def __init__(self, system: ExtendedSystem, point, max_terms: int):
+        self._system, self._point = system, point
+        self._terms = []
+        joint = joint_function(system._residual)
+        args = (system.params,)
+        with system.stats.timer("series"):
+            fns = _affine_functions(joint, point, args)
+            self._path = None if fns is None else AffinePath(fns, point, args, lookahead=True, max_terms=max_terms)
+        self._whole = _series_function(joint) if fns is None else None
+
+    def next(self, U_k, linearisation: Linearisation) -> np.ndarray:
+        """``F_(k+1)`` from the new coefficient ``U_k`` (counted in ``stats.series_orders``)."""
+        st = self._system.stats
+        with st.timer("series"):
+            if self._path is not None:
+                f = self._path.next(U_k) - linearisation.times(U_k)
+            else:
+                self._terms.append(np.asarray(U_k))
+                terms = np.stack(self._terms + [np.zeros_like(U_k)])
+                f = np.asarray(self._whole(self._point, terms, self._system.params))[-1]
+        st.series_orders += 1
+        return f
+
+
+def corrected_start(system: ExtendedSystem, U0, direction: int, tol: float) -> Linearisation:
+    """The linearisation at the starting point, bordered by ``direction`` e_lam (its kernel
+    vector points towards ``direction`` lam); ``u0`` is first brought onto the branch by Newton
+    at fixed lam0 while its Newton correction exceeds ``tol`` (scaled norm), each iteration a
+    counted factorisation (``stats.newton_iterations``)."""
+    row = system.axis_row(system.n, float(direction))
+    U = np.array(U0, dtype=np.float64)
+    for iteration in range(START_ITERATIONS + 1):
+        lin = system.linearise(U, row, step=0)
+        dU = lin.solve(-lin.residual)  # the border row keeps lam fixed
+        size = system.norm(dU)
+        if size <= tol:
+            return lin
+        if iteration == START_ITERATIONS or not np.isfinite(size):
+            raise ContinuationFailure(f"u0 is not a solution at lam0 and Newton at fixed lam0 did not bring it "
+                                      f"there in {START_ITERATIONS} iterations (last correction {size:.3g}); give "
+                                      "a point on the branch", step=0, lam=U[-1],
+                                      residual_norm=float(np.max(np.abs(lin.residual))))
+        U = U + dU
+        system.stats.newton_iterations += 1
+    raise AssertionError("unreachable")
