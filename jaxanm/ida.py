@@ -332,11 +332,18 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
     nthreads : int
         Threads of SuperLU_MT.
 
-    Returns an :class:`IDASolution`.  Raises :class:`InputError` on bad input (before any long
-    computation), the message naming the input and the fix (a missing scikit-sundae names
-    ``pip install 'jaxanm[ida]'``); :class:`IDAFailure` when IDA
-    stopped (error test or Newton failures at the minimum step, too many steps, a residual
-    that went non-finite), with its flag, message and time.
+    Returns
+    -------
+    IDASolution
+
+    Raises
+    ------
+    InputError
+        Bad input (before any long computation), the message naming the input and the fix (a
+        missing scikit-sundae names ``pip install 'jaxanm[ida]'``).
+    IDAFailure
+        IDA stopped (error test or Newton failures at the minimum step, too many steps, a
+        residual that went non-finite), with its flag, message and time.
     """
     wall0 = time.perf_counter()
     ida_module = require("sksundae.ida", "ida", "jaxanm.ida.integrate_ida (SUNDIALS IDA)")

@@ -87,10 +87,22 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
         Keep compiled XLA code on disk in the workers (default: unless ``JAXANM_COMPILE_CACHE=0``,
         :mod:`jaxanm.compile_cache`).
 
+    Returns
+    -------
+    SweepResult
+        The rows, the table and plot paths, the failed and reused tasks.
+
+    Raises
+    ------
+    GridError, InputError
+        Bad input (grid, ``workers``, ``reference``, an unreachable scheduler, a missing extra),
+        before any task runs.
+
+    Notes
+    -----
     Tasks whose output directory holds a finished run of the same scene are not run again:
     their rows are re-read (``reused``).  A failed task is reported in its row and the others go
-    on.  Bad input (grid, ``workers``, ``reference``, an unreachable scheduler) raises
-    :class:`~jaxanm.sweep.grid.GridError` or :class:`jaxanm.InputError` before any task runs.
+    on.
 
     From a script, call it under ``if __name__ == "__main__":``: the local cluster's worker
     processes are spawned, and each imports the script's main module.
