@@ -84,11 +84,22 @@ def _trace(fun: Callable, x, args):
     return closed
 
 
-def _classify(jaxpr):
+def _scalar_factor(eqn, dep: list, scalars: set) -> bool:
+    """Whether ``eqn`` multiplies or divides an x-dependent operand by a scalar (a rank-0
+    constant, or one broadcast from a rank-0 constant)."""
+    if eqn.primitive not in (lax.mul_p, lax.div_p) or sum(dep) != 1:
+        return False
+    const = eqn.invars[dep.index(False)]
+    return isinstance(const, jex_core.Literal) or const in scalars or not const.aval.shape
+
+
+def _classify(jaxpr, scalar_factors_affine: bool = True):
     """Each equation's kind ("const": independent of x, "affine", "rest"), the affine variables,
-    and the rest equations that multiply or divide by a constant (id(eqn) -> x operand's index)."""
+    and the rest equations that multiply or divide by a constant (id(eqn) -> x operand's index).
+    With ``scalar_factors_affine=False`` a product or quotient by a scalar constant is "rest"."""
     depends = {jaxpr.invars[0]}
     affine = {jaxpr.invars[0]}
+    scalars = set()  # x-independent values computed from rank-0 ones only (e.g. broadcast)
     kinds = []
     scaled = {}
     for eqn in jaxpr.eqns:
@@ -96,9 +107,11 @@ def _classify(jaxpr):
         dep = [isinstance(v, jex_core.Var) and v in depends for v in ins]
         if not any(dep):
             kinds.append("const")
+            if all(isinstance(v, jex_core.Literal) or v in scalars or not v.aval.shape for v in ins):
+                scalars.update(eqn.outvars)
             continue
         aff = [isinstance(v, jex_core.Var) and v in affine for v in ins]
-        is_affine = _affine(eqn, dep, aff)
+        is_affine = _affine(eqn, dep, aff) and (scalar_factors_affine or not _scalar_factor(eqn, dep, scalars))
         kinds.append("affine" if is_affine else "rest")
         if (not is_affine and sum(dep) == 1 and all(v is None for v in eqn.params.values())
                 and (eqn.primitive is lax.mul_p or (eqn.primitive is lax.div_p and dep[0]))):
@@ -141,15 +154,18 @@ def _evaluate(env: dict, eqns, scaled: dict) -> None:
             env[var] = val
 
 
-def split_affine(fun: Callable, x, *args) -> AffineSplit:
+def split_affine(fun: Callable, x, *args, scalar_factors_affine: bool = True) -> AffineSplit:
     """Trace ``fun(x, *args)`` (nested ``jit`` calls inlined) and split it at the affine frontier.
 
     ``args`` are example values (shapes and dtypes matter, values do not); the returned
     functions take ``(x, *args)`` and ``(frontier, *args)`` with ``args`` of the same structure.
+    ``scalar_factors_affine=False`` leaves products and quotients by scalar constants (a time
+    step, a material constant) to the rest: the linear map then depends only on the array
+    arguments (stencil weights), which a tangent can cache (:mod:`jaxanm.jacobian`).
     """
     closed = _trace(fun, x, args)
     jaxpr, consts = closed.jaxpr, closed.consts
-    kinds, affine, scaled = _classify(jaxpr)
+    kinds, affine, scaled = _classify(jaxpr, scalar_factors_affine)
     frontier = _frontier(jaxpr, kinds, affine)
 
     def start_env(x_or_none, flat):

@@ -7,6 +7,14 @@ colours, not the number of unknowns.  The compressed product is computed on the 
 (cheap) scatter into a scipy CSC matrix is done on the host, so a new sparsity pattern
 (e.g. after a Lagrangian stencil rebuild) never forces a recompilation as long as the number
 of colours stays within the same padded bucket.
+
+Most of a meshless residual is linear maps of the unknowns (stencil sums) feeding pointwise
+nonlinear terms, and the seeded ``jvp`` spends its time in the stencil sums.  Through the
+affine frontier of :mod:`jaxanm.affine` the chain rule splits it: ``J S = J_rest(F(x)) (A S)``
+with ``A`` the frontier's linear map, which does not depend on ``x``.  ``A S`` (one ``jvp`` of
+the linear part per colour) depends only on the arguments the linear map reads, the stencil
+weights of a fixed cloud, so :class:`SparseJacobian` keeps it while those stay the same
+objects, and a tangent then costs one ``jvp`` of the cheap pointwise rest per colour.
 """
 
 from __future__ import annotations
@@ -17,8 +25,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
+from jax.extend import core as jex_core
 
 from ._x64 import entry_point
+from .affine import split_affine
 
 _COLOR_BUCKET = 16  # colours are padded to a multiple of this: fewer recompiles
 # Device memory one seeded jvp of a meshless residual holds, per nonzero of the Jacobian: its
@@ -105,6 +115,7 @@ class SparseJacobian:
 
     def __init__(self, residual, pattern):
         self._residual = residual
+        self._chain = None  # _FrontierChain, or False where the residual cannot be split
         self.set_pattern(pattern)
 
     def set_pattern(self, pattern) -> None:
@@ -125,15 +136,103 @@ class SparseJacobian:
         self._seeds = seeds
         self.batch = color_batch(csc.nnz, padded)
         self._fn = compressed_jacobian_function(self._residual, self.batch)
+        if self._chain:
+            self._chain.forget()
         self._indptr = csc.indptr.copy()
         self._rows = csc.indices.copy()
         self._cols = np.repeat(np.arange(n), np.diff(csc.indptr))
 
     def __call__(self, x, x_old, t, dt, params) -> scipy.sparse.csc_matrix:
         """Jacobian ``dR/dx_new`` at ``x`` as a CSC matrix (host, float64)."""
-        compressed = np.asarray(self._fn(x, self._seeds, x_old, t, dt, params))
+        args = (x_old, t, dt, params)
+        if self._chain is None:
+            self._chain = _FrontierChain.make(self._residual, x, args, self._seeds.shape[0]) or False
+        compressed = self._chain(self._seeds, self.batch, x, args) if self._chain else None
+        if compressed is None:
+            compressed = self._fn(x, self._seeds, *args)
+        compressed = np.asarray(compressed)
         data = compressed[self.colors[self._cols], self._rows]
         return scipy.sparse.csc_matrix((data, self._rows, self._indptr), shape=(self.n, self.n))
+
+
+class _FrontierChain:
+    """``J S`` by the chain rule through the affine frontier (module docstring), with ``A S``
+    kept while the arguments the linear map reads are the same objects."""
+
+    def __init__(self, split, used: list):
+        self._used = used  # per flat argument leaf: read by the linear map's tangent
+        self._kept_leaves, self._kept = None, None
+        self._moving = False
+
+        def seeded_frontier(batch, seeds, x, *args):
+            column = lambda s: jax.jvp(lambda y: split.linear(y, *args), (x,), (s,))[1]  # noqa: E731
+            if batch is None or batch >= seeds.shape[0]:
+                return jax.vmap(column)(seeds)
+            return jax.lax.map(column, seeds, batch_size=batch)
+
+        def chain(frontier_seeds, x, *args):
+            values = split.linear(x, *args)
+            return jax.vmap(lambda ts: jax.jvp(lambda f: split.rest(f, *args), (values,), (ts,))[1])(frontier_seeds)
+
+        self._seeded_frontier = jax.jit(seeded_frontier, static_argnums=0)
+        self._chain = jax.jit(chain)
+
+    @classmethod
+    def make(cls, residual, x, args, n_colors: int):
+        """The chain for ``residual`` at these arguments, or None when it would not pay: the
+        residual cannot be split, has no affine part, or ``A S`` would exceed the memory
+        budget of :data:`JACOBIAN_MEMORY_BYTES`."""
+        try:
+            split = split_affine(residual, jnp.asarray(x), *args, scalar_factors_affine=False)
+        except Exception:  # noqa: BLE001 - not splittable: the plain compressed jacfwd is correct
+            return None
+        if split.n_affine_eqns == 0:
+            return None
+        frontier = jax.eval_shape(split.linear, jnp.asarray(x), *args)
+        size = sum(int(np.prod(f.shape)) for f in frontier) * n_colors * 8
+        if size > JACOBIAN_MEMORY_BYTES:
+            return None
+        return cls(split, _tangent_inputs(split.linear, x, args))
+
+    def forget(self) -> None:
+        """Drop the kept ``A S`` (the seeds changed)."""
+        self._kept_leaves, self._kept = None, None
+
+    def __call__(self, seeds, batch, x, args):
+        """``J S`` (n_colors, n) at ``x`` (``A S`` made ``batch`` colours at a time, as
+        :func:`compressed_jacobian_function`), or None once the arguments the linear map reads
+        have changed between two tangents (a cloud that moves, whose ``A S`` would be made
+        anew for every tangent at more than the cost of the plain seeded ``jvp``)."""
+        if self._moving:
+            return None
+        leaves = [leaf for leaf, used in zip(jax.tree_util.tree_leaves(args), self._used) if used]
+        if self._kept is None or len(leaves) != len(self._kept_leaves) or any(
+                a is not b for a, b in zip(leaves, self._kept_leaves)):
+            if self._kept is not None:
+                self._moving = True
+                self.forget()
+                return None
+            self._kept = self._seeded_frontier(batch, seeds, jnp.asarray(x), *args)
+            self._kept_leaves = leaves  # held, so that an identical id cannot be a new object
+        return self._chain(self._kept, jnp.asarray(x), *args)
+
+
+def _tangent_inputs(linear, x, args) -> list:
+    """Per flat leaf of ``args``: whether the tangent of ``linear`` (its ``A s``) reads it."""
+    flat, tree = jax.tree_util.tree_flatten(args)
+
+    def tangent(s, *flat_args):
+        rebuilt = jax.tree_util.tree_unflatten(tree, flat_args)
+        return jax.jvp(lambda y: linear(y, *rebuilt), (jnp.asarray(x),), (s,))[1]
+
+    with jax.disable_jit():
+        closed = jax.make_jaxpr(tangent)(jnp.asarray(x), *flat)
+    jaxpr = closed.jaxpr
+    needed = {v for v in jaxpr.outvars if isinstance(v, jex_core.Var)}
+    for eqn in reversed(jaxpr.eqns):
+        if any(v in needed for v in eqn.outvars) or eqn.effects:
+            needed.update(v for v in eqn.invars if isinstance(v, jex_core.Var))
+    return [v in needed for v in jaxpr.invars[1:]]
 
 
 @entry_point
