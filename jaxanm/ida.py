@@ -300,10 +300,8 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
     residual : callable
         ``residual(x_new, x_old, t_new, dt, params) -> (n,)`` in ``jax.numpy``, of the form of
         the module docstring (``x_old`` only through a difference quotient of a linear map).
-    x0 : array (n,)
-        State at ``t0``.
-    params : pytree
-        Parameters of the residual (fixed for the run).
+    x0, params : array (n,), pytree
+        State at ``t0``; parameters of the residual (fixed for the run).
     t0 : float
         Initial time.
     t_out : array of float
@@ -326,7 +324,8 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
         Step and Newton tolerance of that start (default ``ic_dt`` = ``1e-6`` of the span).
     consistency_tol : float
         Largest ``max |F(t0, x0, yp0)|`` accepted for a given ``yp0`` (scaled rows).
-    max_order, first_step, max_step : IDA's options (BDF order 1-5; 0 lets IDA choose).
+    max_order, first_step, max_step : int, float, float
+        IDA's options (BDF order 1-5; 0 lets IDA choose).
     max_steps : int
         Internal steps allowed in all (an :class:`IDAFailure` beyond).
     nthreads : int
@@ -339,11 +338,9 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
     Raises
     ------
     InputError
-        Bad input (before any long computation), the message naming the input and the fix (a
-        missing scikit-sundae names ``pip install 'jaxanm[ida]'``).
+        Bad input, before any long computation, naming the fix (``pip install 'jaxanm[ida]'``).
     IDAFailure
-        IDA stopped (error test or Newton failures at the minimum step, too many steps, a
-        residual that went non-finite), with its flag, message and time.
+        IDA stopped (error test or Newton failures, too many steps, non-finite residual).
     """
     wall0 = time.perf_counter()
     ida_module = require("sksundae.ida", "ida", "jaxanm.ida.integrate_ida (SUNDIALS IDA)")
