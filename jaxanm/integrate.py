@@ -172,6 +172,12 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
               controller: StepController | None = None, sensitivity: SensitivityMethod | None = None) -> Solution:
     """Integrate ``R(x_new, x_old, t_new, dt, params) = 0`` by implicit Euler steps from t0 to t1.
 
+    Returns a :class:`Solution` (``ts``, ``xs``, ``stats``; ``params``, ``observed`` if asked).
+    Raises :class:`InputError` on invalid arguments, before any computation; :class:`StepFailure`
+    or :class:`NonFiniteError` when a step failed even after ``max_dt_halvings`` halvings or an
+    accepted state or its residual is not finite (message: step, time, a_max, residual norm);
+    they (and a ``KeyboardInterrupt``) carry the run's statistics so far as ``stats``.
+
     Parameters
     ----------
     residual : callable
@@ -225,20 +231,6 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         :class:`~jaxanm.sensitivity.ForwardSensitivity`): it gets every solved (sub-)step, may
         polish the state the run goes on from, and every accepted step.  Not with
         ``after_step``, a ``controller`` or checkpoints.
-
-    Returns
-    -------
-    Solution
-        ``ts``, ``xs``, ``stats``; ``params``, ``observed`` if asked.
-
-    Raises
-    ------
-    InputError
-        Invalid arguments, before any computation.
-    StepFailure, NonFiniteError
-        A step failed even after ``max_dt_halvings`` halvings, or an accepted state or its
-        residual is not finite (message: step, time, a_max, residual norm); they (and a
-        ``KeyboardInterrupt``) carry the run's statistics so far as ``stats``.
     """
     saveat = SaveAt() if saveat is None else saveat
     x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, saveat, controller)
