@@ -1,4 +1,4 @@
-"""JAX's persistent compilation cache for the ``jaxanm`` command (issue 13).
+"""JAX's persistent compilation cache for the ``jaxanm`` command.
 
 Most of a short run's wall time is XLA compiling the residual, its coloured Jacobian and the
 series jets (tens of seconds for ``fsw_paper``).  JAX can keep compiled executables on disk

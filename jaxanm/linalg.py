@@ -30,7 +30,7 @@ from .stats import Stats
 # MMD_AT_PLUS_A with partial pivoting: 2.0e6 (its pivots leave the diagonal), 160 ms; KLU and
 # MKL's PARDISO (PyPI wheels): 124 and 70 ms (PARDISO's 7 solves 38 ms); a reverse
 # Cuthill-McKee renumbering of the points gains at most 1-2 ms more (benchmarks/results/lu_orderings.md,
-# medians back to back, load 1-2.4).  The MLS value matrix of the Lagrangian refit
+# medians back to back).  The MLS value matrix of the Lagrangian refit
 # factorises faster too (0.93e5 non-zeros against 1.21e5).  An exactly singular factor raises.
 #
 # On finer clouds the symmetric mode loses: the eliminated diagonals fall below the threshold

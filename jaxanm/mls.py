@@ -79,8 +79,8 @@ CALL_MAX = 1024
 
 A call has a fixed cost (its dispatch, and a start for each of its ~200 XLA fusions): one call
 over all of fsw_paper's 881 points (padded to 896) instead of 7 calls of 128 took 2.3 against
-3.3 ms (interleaved, 2-core AMD EPYC at load 6, before the :data:`INNER` blocks; the
-value-only kernel 1.1 against 1.5 ms; issue 14).  The compiled shapes are the multiples of
+3.3 ms (interleaved, on a busy 2-core AMD EPYC, before the :data:`INNER` blocks; the
+value-only kernel 1.1 against 1.5 ms).  The compiled shapes are the multiples of
 :data:`CHUNK` up to this: at most 8 per (m, q) and kernel, each compiled once."""
 
 INNER = 64
@@ -88,7 +88,7 @@ INNER = 64
 
 The kernel's ~200 fusions then each work on (64, m) arrays that stay in the L1/L2 caches
 instead of streaming (896, m) arrays: on fsw_paper (896 points, m = 32), interleaved, process
-CPU time at load 5.5: 1.73 ms against 2.10 for one pass over all points (32: 1.78, 128: 2.05),
+CPU time on a busy machine: 1.73 ms against 2.10 for one pass over all points (32: 1.78, 128: 2.05),
 the value-only kernel 0.70 against 0.80 ms; results change by round-off (2e-15 of sum |w|).
 The loop costs compile time: 4.1 s against 3.2 s for the derivative kernel, 3.4 against 1.7
 s for the value-only one (once per shape; ``jaxanm run`` keeps them in its compile cache)."""
@@ -431,7 +431,7 @@ def _condition_screen(bound, x, y, mask, c, q):
     matrices (:func:`_equilibrated_moments` of the kernel's inputs ``x, y, mask, c, q``).
     Which rows pass the check does not depend on the bound.
 
-    The bound was ``det / trace^k`` until 2026-12-03, 3e3 to 8e3 times weaker for an
+    The bound was ``det / trace^k`` before, 3e3 to 8e3 times weaker for an
     equilibrated 6 x 6 matrix (trace 6, Frobenius norm between sqrt 6 and 6): it left 148 of
     fsw_paper's 881 rows (the one-sided supports at the disc's edges, rcond ~ 1e-5) to the
     moments and eigenvalues in numpy, 0.7 ms a rebuild (idle); this one leaves none.
