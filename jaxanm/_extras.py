@@ -27,10 +27,10 @@ class MissingExtraError(InputError, ImportError):
 
 
 def missing_extra_message(extra: str, purpose: str, detail: str = "") -> str:
-    """``"<purpose> needs <packages> (not installed): pip install 'jaxanm[<extra>]'"``."""
+    """``"<purpose> needs <packages> (not installed: <detail>): pip install 'jaxanm[<extra>]'"``."""
     packages = " and ".join(EXTRAS[extra])
-    why = f" ({detail})" if detail else ""
-    return f"{purpose} needs {packages}, which is not installed{why}: pip install 'jaxanm[{extra}]'"
+    why = f"not installed: {detail}" if detail else "not installed"
+    return f"{purpose} needs {packages} ({why}): pip install 'jaxanm[{extra}]'"
 
 
 def require(module: str, extra: str, purpose: str):
