@@ -45,6 +45,51 @@ class BranchPoints(NamedTuple):
 @dataclasses.dataclass(frozen=True)
 class Branch:
     """A branch of solutions of ``R(u, lam) = 0`` from :func:`continuation` or
+    :func:`newton_continuation`: its points at the step ends, the start first, and a series
+    per step to evaluate it between them.
+
+    Attributes
+    ----------
+    lam : ndarray (S,)
+        The parameter at the points.
+    u : ndarray (S, n)
+        The unknowns at the points.
+    a : ndarray (S-1,)
+        Length of each step in the scaled pseudo-arclength, ``<U_(i+1) - U_i, t_i>`` (:attr:`s`
+        is their running sum).
+    amax : ndarray (S-1,) or None
+        The ANM's validity range of each step (eq. 26); ``a`` is shorter where the branch
+        stopped at ``lam_end`` / ``stop_at`` or the end-point check halved it.  None for Newton.
+    residual_norm : ndarray (S,)
+        ``|R|_inf`` at the points.
+    correction : ndarray (S-1,)
+        Scaled norm of each step's end correction: for the ANM, the end point's distance from
+        the branch before it was corrected; for Newton, the last Newton correction.
+    tangent : ndarray (S, n+1)
+        Unit tangent (scaled norm) at the points, oriented along the branch.
+    series : ndarray (S-1, q, n+1) or None
+        ``U(a) = U_i + sum_k a^k series[i, k-1]`` on step i, ``a`` in ``[0, a[i]]``: the ANM's own
+        series (q = order; the next point is its corrected end), Newton's chord-length cubic
+        Hermite interpolant of the points and tangents (q = 3).  None with ``keep_series=False``.
+    scale : ndarray (n+1,)
+        The scale of the unknowns (u's, then lam's).
+    stats : Stats
+        Factorisations, series orders, solves, Newton iterations, ``amax``, ``orders``,
+        ``step_sizes``, ``rejected_steps`` (steps halved or refused), the wall-time split.
+    method : str
+        ``"anm"`` or ``"newton"``.
+    stopped : str
+        Why the branch ends: ``"lam_end"``, ``"stop_at"`` or ``"max_steps"``.
+    """
+
+    lam: np.ndarray
+    u: np.ndarray
+    s: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class Branch:
+    """A branch of solutions of ``R(u, lam) = 0`` from :func:`continuation` or
     :func:`newton_continuation`.
 
     ``lam (S,)``, ``u (S, n)``: the points at the step ends, the start first.  ``a (S-1,)``: the
@@ -274,8 +319,7 @@ def continuation(residual: Callable, u0, lam0, params=None, *, lam_end=None, sto
         :mod:`jaxanm.solvers`) the step is halved (same series, no factorisation; counted in
         ``stats.rejected_steps``), at most ``MAX_HALVINGS`` times.
     keep_series : bool
-        Keep each step's series in the :class:`Branch` (for ``evaluate``, ``crossings``,
-        ``limit_points``): ``(steps, order, n+1)`` floats.
+        Keep each step's series, ``(steps, order, n+1)`` floats, in the :class:`Branch`.
     factorize : callable ``(matrix, stats) -> object with solve(rhs)``, optional
         How the bordered matrix (dense array or scipy CSC, (n+1, n+1)) is factorised; default
         :func:`jaxanm.linalg.factorize`.  The series needs solves with the exact tangent at
@@ -283,10 +327,20 @@ def continuation(residual: Callable, u0, lam0, params=None, *, lam_end=None, sto
         accuracy (e.g. GMRES preconditioned by an earlier LU) and count what it does in
         ``stats``.  An object with ``release()`` has it called before the next factorisation.
 
-    Returns a :class:`Branch`.  Raises :class:`~jaxanm.InputError` on invalid arguments, before
-    any computation, and a :class:`~jaxanm.StepFailure` (:class:`ContinuationFailure`: step, lam,
-    a_max, residual) when a step fails: non-finite values, a singular bordered matrix, a series
-    that cannot advance.
+    Returns
+    -------
+    Branch
+        The points, each step's series (``evaluate``, ``crossings``, ``limit_points``), stats.
+
+    Raises
+    ------
+    InputError
+        On invalid arguments, before any computation.
+    StepFailure
+        A :class:`~jaxanm.ContinuationFailure` (step, lam, a_max, residual) when a step fails:
+        non-finite values, a singular bordered matrix, a series that cannot advance, an end
+        point that misses its accuracy after ``MAX_HALVINGS`` halvings, or a starting point
+        that Newton cannot bring onto the branch.
     """
     U0, scale, ends = check_inputs(residual, u0, lam0, params, lam_end=lam_end, stop_at=stop_at,
                                    max_steps=max_steps, tol=tol, scale=scale, jacobian=jacobian, sparsity=sparsity,
@@ -431,11 +485,31 @@ def newton_continuation(residual: Callable, u0, lam0, params=None, *, lam_end=No
     A step that passes ``lam_end`` / ``stop_at`` is followed by Newton with that unknown fixed
     at its value, from the linear interpolation of the two points.
 
-    The other arguments are those of :func:`continuation` (``tol`` here bounds the last Newton
-    correction; ``u0`` is corrected the same way).  Returns a :class:`Branch` whose ``series``
-    is the chord-length cubic Hermite interpolant of the points and tangents of each step
-    (parameter in ``[0, a_i]``), and ``amax`` None; ``correction`` holds the last Newton correction of
-    each step.
+    Parameters
+    ----------
+    ds, ds_max, ds_min : float
+        First, largest and smallest step length (scaled pseudo-arclength).
+    max_iter, target_iter : int
+        Newton iterations allowed per step, and the number the step-length control aims at.
+    residual, u0, lam0, params, lam_end, stop_at, max_steps, tol, scale, jacobian, sparsity, direction, factorize :
+        As for :func:`continuation`; ``tol`` bounds the last Newton correction (scaled norm),
+        and ``u0`` is corrected the same way.
+
+    Returns
+    -------
+    Branch
+        ``series`` is the chord-length cubic Hermite interpolant of the points and tangents of
+        each step (parameter in ``[0, a_i]``; limit points and crossings found on it are as
+        accurate as that interpolation), ``amax`` None, ``correction`` the last Newton
+        correction of each step.
+
+    Raises
+    ------
+    InputError
+        On invalid arguments, before any computation.
+    StepFailure
+        A :class:`~jaxanm.ContinuationFailure` when the corrector fails down to ``ds_min``, or
+        Newton at a stopping value does not converge.
     """
     U0, scale, ends = check_inputs(residual, u0, lam0, params, lam_end=lam_end, stop_at=stop_at,
                                    max_steps=max_steps, tol=tol, scale=scale, jacobian=jacobian, sparsity=sparsity,
