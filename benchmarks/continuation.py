@@ -1,0 +1,182 @@
+"""Path following by the ANM against pseudo-arclength Newton: factorisations, steps, series
+orders and wall time on the problems of ``tests/test_continuation.py``.
+
+- Bratu 1D, ``u'' + lam e^u = 0`` by central differences on N = 19, 39, 79 interior points,
+  from rest through the fold to u(1/2) = 2 (``stop_at``), u scaled by sqrt(N);
+- the two-bar truss (half-span 1, rise 0.1, EA = 1) from rest through both limit points to
+  P = 2 P* on the stiffening branch (``lam_end``).
+
+Methods: :func:`jaxanm.continuation` at orders 8 and 15 (the default), tol 1e-8 (eq. 26), and
+:func:`jaxanm.newton_continuation` with its defaults (tol 1e-8, ds 0.1, ds_max 1, target 4
+iterations) and with ds_max 0.25 (shorter steps: more factorisations, a closer interpolant).  Accuracy beside the cost: the Bratu fold from each branch (``limit_points``; for
+Newton from its cubic Hermite interpolant) against the discrete fold solved directly (Newton
+on R = 0, R_u phi = 0, |phi| = 1), the truss's limit loads against the closed form, and the
+largest residual at the points.
+
+Every case runs once cold (its jets compiled on the way: ``first_s``) and then ``--repeats``
+times warm (``wall_s``: the median; ``wall_spread_s``: min and max); ``os.getloadavg()`` is
+recorded before each case.  Counts are what matters: other work shares the machine.
+
+    python benchmarks/continuation.py [--repeats 3] [--out benchmarks/results/continuation]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import pathlib
+import statistics
+import time
+
+import jax.numpy as jnp
+import numpy as np
+
+import jaxanm
+
+HERE = pathlib.Path(__file__).resolve().parent
+TOL = 1e-8
+L, H, EA = 1.0, 0.1, 1.0
+L0 = np.hypot(L, H)
+L_STAR = (L**2 * L0) ** (1 / 3)
+Y_STAR = np.sqrt(L_STAR**2 - L**2)
+P_STAR = 2 * EA * Y_STAR * (1 / L_STAR - 1 / L0)  # closed-form limit load (tests/test_continuation.truss_load)
+
+
+def bratu(n: int):
+    """The discrete Bratu residual on ``n`` interior points."""
+    h = 1.0 / (n + 1)
+
+    def residual(u, lam, params):
+        up = jnp.concatenate([jnp.zeros(1), u, jnp.zeros(1)])
+        return (up[2:] - 2.0 * u + up[:-2]) / h**2 + lam * jnp.exp(u)
+
+    return residual
+
+
+def truss(u, lam, params):
+    """Apex equilibrium of the two-bar truss (u = horizontal displacement, deflection down)."""
+    dx = u[0] - np.array([-L, L])
+    dy = (H - u[1]) * jnp.ones(2)
+    n_over_l = EA * (1.0 / L0 - 1.0 / jnp.sqrt(dx**2 + dy**2))
+    return jnp.stack([jnp.sum(n_over_l * dx), -jnp.sum(n_over_l * dy) - lam])
+
+
+def discrete_fold(n: int) -> float:
+    """The discrete Bratu fold by Newton on the extended system (dense numpy)."""
+    h = 1.0 / (n + 1)
+    lap = (np.diag(np.full(n, -2.0)) + np.diag(np.ones(n - 1), 1) + np.diag(np.ones(n - 1), -1)) / h**2
+    x = np.linspace(h, 1.0 - h, n)
+    u, phi, lam = 1.2 * np.sin(np.pi * x), np.sin(np.pi * x) / np.sqrt(n / 2), 3.5
+    for _ in range(30):
+        e = np.exp(u)
+        jac = lap + np.diag(lam * e)
+        rows = np.block([[jac, np.zeros((n, n)), e[:, None]], [np.diag(lam * e * phi), jac, (e * phi)[:, None]],
+                         [np.zeros((1, n)), 2.0 * phi[None, :], np.zeros((1, 1))]])
+        step = np.linalg.solve(rows, -np.concatenate([lap @ u + lam * e, jac @ phi, [phi @ phi - 1.0]]))
+        u, phi, lam = u + step[:n], phi + step[n:2 * n], lam + step[-1]
+        if np.max(np.abs(step)) < 1e-14:
+            break
+    return float(lam)
+
+
+def problems():
+    """``(name, residual, u0, kwargs, reference limit loads)`` of each problem."""
+    for n in (19, 39, 79):
+        kwargs = dict(stop_at=(n // 2, 2.0), max_steps=500, scale=np.append(np.full(n, np.sqrt(n)), 1.0))
+        yield f"bratu N={n}", bratu(n), np.zeros(n), kwargs, [discrete_fold(n)]
+    kwargs = dict(lam_end=2 * P_STAR, max_steps=500, scale=[H, H, 2 * EA * H**3 / (3 * np.sqrt(3) * L**3)])
+    yield "truss", truss, np.zeros(2), kwargs, [P_STAR, -P_STAR]
+
+
+METHODS = [("anm p=8", dict(order=8)), ("anm p=15", dict(order=15)), ("newton", {}),
+           ("newton ds_max=0.25", dict(ds_max=0.25))]
+
+
+def run(residual, u0, kwargs, method: str, options: dict):
+    """One branch (ANM or Newton)."""
+    if method.startswith("anm"):
+        return jaxanm.continuation(residual, u0, 0.0, tol=TOL, **options, **kwargs)
+    return jaxanm.newton_continuation(residual, u0, 0.0, tol=TOL, **options, **kwargs)
+
+
+def measure(name, residual, u0, kwargs, reference, method, options, repeats: int) -> dict:
+    """Counts, accuracy and times of one case."""
+    load = os.getloadavg()
+    start = time.perf_counter()
+    branch = run(residual, u0, kwargs, method, options)
+    first = time.perf_counter() - start
+    walls = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run(residual, u0, kwargs, method, options)
+        walls.append(time.perf_counter() - start)
+    limits = branch.limit_points().lam
+    st = branch.stats
+    return {
+        "problem": name, "method": method, "steps": int(branch.a.size), "factorizations": st.factorizations,
+        "series_orders": st.series_orders, "solves": st.solves, "newton_iterations": st.newton_iterations,
+        "residual_evaluations": st.residual_evaluations, "rejected_steps": st.rejected_steps,
+        "limit_loads": [float(v) for v in limits],
+        "limit_error": float(np.max(np.abs(limits - np.array(reference)))) if limits.size == len(reference) else None,
+        "limit_scale": float(max(abs(r) for r in reference)),
+        "max_residual": float(np.max(branch.residual_norm)), "end_lam": float(branch.lam[-1]),
+        "first_s": first, "wall_s": statistics.median(walls), "wall_spread_s": [min(walls), max(walls)],
+        "wall_split_s": {k: round(v, 4) for k, v in st.wall_time.items()}, "loadavg": list(load),
+    }
+
+
+def markdown(results: dict) -> str:
+    """The results as a markdown page."""
+    lines = [
+        "# Path following: ANM against pseudo-arclength Newton",
+        "",
+        f"Made by `python benchmarks/continuation.py` on {results['date']} ({results['cpus']} CPUs; "
+        f"load average before each case in the JSON). tol = {TOL:g} for both methods; Newton with its "
+        "defaults (ds 0.1, ds_max 1, 4 iterations targeted). Bratu from rest through the fold to "
+        "u(1/2) = 2; truss from rest through both limit points to P = 2 P*. `limit error`: the "
+        "fold's lam against the discrete fold solved directly (Bratu), the limit loads against the "
+        "closed form (truss), relative to the largest; Newton's come from its cubic Hermite "
+        "interpolant. Wall: median of the warm repeats; first: the first run, with the compilation "
+        "of what the rows above had not compiled (p = 15 reuses the jets of p = 8 up to 8 terms).",
+        "",
+        "| problem | method | steps | factorisations | series orders | solves | Newton iterations "
+        "| limit error (rel.) | max abs R | first (s) | wall (s) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in results["cases"]:
+        error = "n/a" if r["limit_error"] is None else f"{r['limit_error'] / r['limit_scale']:.1e}"
+        lines.append(f"| {r['problem']} | {r['method']} | {r['steps']} | {r['factorizations']} | {r['series_orders']} "
+                     f"| {r['solves']} | {r['newton_iterations']} | {error} | {r['max_residual']:.1e} "
+                     f"| {r['first_s']:.2f} | {r['wall_s']:.3f} |")
+    loads = [r["loadavg"][0] for r in results["cases"]]
+    lines += ["", f"Counts are deterministic; the times move with the machine's load (1-minute load average "
+              f"{min(loads):.1f}-{max(loads):.1f} before the cases of this run; JSON: `loadavg` per case, the "
+              "spread of the repeats)."]
+    return "\n".join(lines) + "\n"
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", default=str(HERE / "results" / "continuation"))
+    args = parser.parse_args()
+    cases = []
+    for name, residual, u0, kwargs, reference in problems():
+        for method, options in METHODS:
+            case = measure(name, residual, u0, kwargs, reference, method, options, args.repeats)
+            print(f"{name:12s} {method:18s} steps {case['steps']:4d} factorisations {case['factorizations']:4d} "
+                  f"series orders {case['series_orders']:5d} limit {case['limit_loads']} "
+                  f"first {case['first_s']:.2f} s wall {case['wall_s']:.3f} s", flush=True)
+            cases.append(case)
+    results = {"date": datetime.date.today().isoformat(), "cpus": os.cpu_count(), "tol": TOL, "cases": cases}
+    out = pathlib.Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(results, indent=1) + "\n")
+    out.with_suffix(".md").write_text(markdown(results))
+    print(f"wrote {out}.md and .json")
+
+
+if __name__ == "__main__":
+    main()
