@@ -423,27 +423,52 @@ def _step_length(system, lin, coeffs, opts: _Options, step):
 def _step_end(system, lin, coeffs, a, end, opts: _Options, step, amax):
     """The step's end: ``(U_next, unit tangent there, a, end, distance)``.  Its end point is
     checked by one chord-Newton correction with the step's factorisation (its scaled size is
-    the distance from the branch); a distance above what the series promised halves ``a``."""
+    the distance from the branch).  A distance above what the series promised halves ``a``.
+    If halving does not at least halve the distance, the excess is no truncation error (that
+    falls as a^(p+1)) but a floor (round-off in R and in the solve, or the start's own
+    distance): the longer step is kept when that floor is within ``CHECK_LIMIT tol`` of the
+    state (``ANM(criterion="state")``'s yardstick), else the step fails."""
+    previous = None
     for _ in range(MAX_HALVINGS + 1):
-        U_end = lin.point + evaluate_series(coeffs, a)
-        r_end = system.residual(U_end)
-        if np.all(np.isfinite(r_end)):
-            dU = _correction(system, lin, coeffs[0], r_end, U_end, end)
-            distance = system.norm(dU)
-            promised = max(opts.tol * a, CHECK_ROUND_OFF * system.norm(U_end), np.finfo(float).tiny)
-            if distance <= CHECK_LIMIT * promised:
+        attempt = _end_point(system, lin, coeffs, a, end)
+        if attempt is not None:
+            promised = max(opts.tol * a, CHECK_ROUND_OFF * system.norm(attempt[0]), np.finfo(float).tiny)
+            if attempt[3] <= CHECK_LIMIT * promised:
                 break
+            if previous is not None and attempt[3] > 0.5 * previous[0][3]:
+                (attempt, a, end), floor = previous, previous[0][3]
+                if floor > CHECK_LIMIT * opts.tol * max(1.0, system.norm(attempt[0])):
+                    raise ContinuationFailure(f"the end point's distance from the branch does not fall with the "
+                                              f"step: a floor of {floor:.3g} (scaled), above tol times the state; "
+                                              "the problem is too ill-conditioned here for this tol", step=step,
+                                              lam=lin.point[-1], amax=amax,
+                                              residual_norm=float(np.max(np.abs(attempt[1]))))
+                system.stats.rejected_steps -= 1
+                break
+        previous = None if attempt is None else (attempt, a, end)
         a, end = 0.5 * a, None
         system.stats.rejected_steps += 1
     else:
+        residual = np.nan if attempt is None else float(np.max(np.abs(attempt[1])))
         raise ContinuationFailure(f"end point misses the accuracy of eq. 26 after {MAX_HALVINGS} halvings of the "
-                                  f"step", step=step, lam=lin.point[-1], amax=amax,
-                                  residual_norm=float(np.max(np.abs(r_end))))
+                                  f"step", step=step, lam=lin.point[-1], amax=amax, residual_norm=residual)
+    U_end, _, dU, distance = attempt
     U_next = U_end + dU if opts.correct else U_end
     if end is not None:
         U_next[end[0]] = end[1]
     derivative = np.arange(1, coeffs.shape[0] + 1) @ (coeffs * a ** np.arange(coeffs.shape[0])[:, None])
     return U_next, derivative / system.norm(derivative), a, end, distance
+
+
+def _end_point(system, lin, coeffs, a, end):
+    """The series' end point at ``a``, the residual there, its chord correction and that
+    correction's scaled size: ``(U_end, R, dU, distance)``, or None when R is not finite."""
+    U_end = lin.point + evaluate_series(coeffs, a)
+    r_end = system.residual(U_end)
+    if not np.all(np.isfinite(r_end)):
+        return None
+    dU = _correction(system, lin, coeffs[0], r_end, U_end, end)
+    return U_end, r_end, dU, system.norm(dU)
 
 
 def _correction(system, lin, U_1, r_end, U_end, end) -> np.ndarray:
