@@ -117,3 +117,22 @@ def test_quasi_static_run_resumes_bit_identically(tmp_path, monkeypatch):
     for key in ("t", "points", "u", "v", "T"):
         np.testing.assert_array_equal(getattr(res, key), getattr(ref, key), err_msg=key)
     assert res.start.residual_norms == ref.start.residual_norms
+
+
+@pytest.mark.slow  # about half a minute: jets of the flow rows compiled for the continuation
+def test_continuation_start_reaches_the_damped_newton_flow():
+    # the same stationary rows solved two ways: damped Newton from rest (to 1e-8 in the scaled
+    # change) and ANM path following in the regularisation, whose end point is within
+    # 10 tol = 1e-5 of the branch relative to the state (its end-point check, tol = 1e-6):
+    # the two flows agree to that, in units of omega R1
+    from jaxanm.fsw.start import continuation_state
+
+    scene = load_scene("fsw_small")
+    _, stencils, model, _, _ = discretise(scene)
+    newton, _ = quasi_static_state(scene, model, stencils)
+    path, report = continuation_state(scene, model, stencils, order=8)
+    U = scene.tool.omega * scene.geometry.R1
+    assert np.abs(path - newton).max() / U < 1e-5
+    assert report.iterations >= 1 and sum(report.step_lengths) == pytest.approx(
+        np.log(1e3 * scene.tool.omega / scene.material.eps0))  # from lam0 to 0 exactly
+    assert report.stats.factorizations >= report.iterations  # one bordered LU a step (+ the start's Newton)

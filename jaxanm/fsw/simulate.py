@@ -3,7 +3,7 @@
 
 :func:`run` discretises the scene (:func:`~jaxanm.fsw.discretisation.discretise`: cloud, MLS
 stencils, :class:`~jaxanm.fsw.discretisation.Model`), optionally solves the quasi-static start
-(:mod:`jaxanm.fsw.start`), and calls :func:`jaxanm.integrate` with the scene's
+flow (:mod:`jaxanm.fsw.start`: by damped Newton or by continuation), and calls :func:`jaxanm.integrate` with the scene's
 :class:`jaxanm.SaveAt`, its step controller and the host hook of :mod:`jaxanm.fsw.lagrangian`
 (records, Lagrangian motion, rezoning) after every accepted step; the hook's state is
 checkpointed with the run.
@@ -21,7 +21,10 @@ from .discretisation import Model, discretise
 from .lagrangian import MovingRecorder, motion_dt_max
 from .record import FSWResult
 from .scene import Scene
-from .start import quasi_static_state
+from .start import continuation_state, quasi_static_state
+
+_STARTS = {"quasi_static": quasi_static_state, "continuation": continuation_state}
+"""The solvers of the start flow per ``mechanics.start`` ("rest" solves none)."""
 
 __all__ = ["run", "scene_differences", "step_controller"]
 
@@ -132,8 +135,8 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     _, stencils, model, params, x0 = discretise(scene)
     initial, start = None, None
     resuming = resume and checkpoint is not None and os.path.exists(checkpoint)
-    if scene.mechanics.start == "quasi_static" and not resuming:  # a resumed run's state is in its checkpoint
-        x0, start = quasi_static_state(scene, model, stencils)
+    if scene.mechanics.start in _STARTS and not resuming:  # a resumed run's state is in its checkpoint
+        x0, start = _STARTS[scene.mechanics.start](scene, model, stencils)
         initial = model.values(x0, stencils)
     tm = scene.time
     controller = step_controller(scene, model)

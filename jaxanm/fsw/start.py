@@ -16,7 +16,17 @@ by Newton with a backtracking line search on the residual, from rest.  The line 
 what the step solvers lack there: undamped, Newton's updates overshoot in that slow zone and
 diverge on the 0.075 mm graded cloud; damped, it converges from rest on every cloud tried
 (6-13 iterations).  The run's first step then starts next to its root and only adds the
-change of one time step.  (The 1-D Couette profile fitted to the cloud is no better a start:
+change of one time step.
+
+``mechanics.start = "continuation"`` solves the same flow by the ANM's own path following
+(:func:`continuation_state`, :func:`jaxanm.continuation`): the regularisation eps0 is
+continued from ``eps0 e^s0``, where the flow is Newtonian and its solve linear, down to eps0,
+in the parameter ``lam = -ln(eps0_eff / eps0)``.  The law's branch points ``epsbar^2 =
+-eps0_eff^2`` lie at ``lam = ln(eps0 / epsbar) -/+ i pi/2`` for the strain rate epsbar of
+each point, so along the whole path the branch is analytic only in a strip of half-width
+pi/2: each series reaches about a radian, whatever its order, and the path of length s0
+takes of the order of s0 steps, each with its own factorisation
+(docs/notes/start_from_rest.md has the measurements against the damped-Newton start).  (The 1-D Couette profile fitted to the cloud is no better a start:
 13 -> 10 iterations on the 0.075 mm graded cloud, but 10 -> 17 on a coarse graded one, where
 its MLS fit oscillates; the note has the table.)
 """
@@ -29,13 +39,14 @@ import time
 import numpy as np
 
 from .._x64 import entry_point
+from ..continuation import continuation
 from ..errors import StepFailure
 from ..linalg import factorize
 from ..solvers import Problem, _relative_change
 from ..stats import Stats
 from .discretisation import Model, make_model
 
-__all__ = ["StartReport", "quasi_static_state"]
+__all__ = ["StartReport", "continuation_state", "quasi_static_state"]
 
 _SUFFICIENT_DECREASE = 1e-4
 """Armijo's constant: a step of length a must cut |R|_2 by at least this fraction of a."""
@@ -127,4 +138,54 @@ def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_ite
     for k, name in enumerate(("u", "v")):
         x0[model.fields.index(name)] = velocity.reshape(2, -1)[k]
     report.stats.close(time.perf_counter() - began)
+    return x0.reshape(-1), report
+
+
+CONTINUATION_RATIO = 1e3
+"""The continuation starts at ``eps0_eff = CONTINUATION_RATIO * omega``: a thousand times the
+flow's strain rates (about omega, up to ``2 omega / (sqrt 3 n)`` at the tool edge for the
+paper's n), so that the start solve is Newtonian to 1e-3 and converges in a few Newton steps."""
+
+
+def _regularised_flow(residual):
+    """``R(u, lam, params)``: the flow rows with ``eps0 * exp(-lam)`` for eps0 (the continuation
+    parameter of :func:`continuation_state`); ``params["rest"]`` is the old state of the rows."""
+    import jax.numpy as jnp
+
+    def rows(u, lam, p):
+        c = dict(p["c"], eps0=p["c"]["eps0"] * jnp.exp(-lam))
+        return residual(u, p["rest"], 1.0, 1.0, dict(p, c=c))
+
+    return rows
+
+
+@entry_point
+def continuation_state(scene, model: Model, stencils, order: int = 15, tol: float = 1e-6, max_steps: int = 60):
+    """Initial unknowns of ``model`` with the quasi-static flow at T0, by ANM path following in
+    the strain-rate regularisation (module docstring); returns ``(x0, StartReport)``.
+
+    The same stationary rows as :func:`quasi_static_state`, followed by
+    :func:`jaxanm.continuation` from ``lam = -ln(CONTINUATION_RATIO omega / eps0)`` (its start
+    corrected by Newton at that lam) to ``lam = 0``, steps of order ``order`` with eq. 26's
+    ``tol``.  The report's ``iterations`` are the continuation steps, ``step_lengths`` their
+    lengths in lam, ``residual_norms`` ``|R|_inf`` at the step ends.
+    """
+    began = time.perf_counter()
+    flow = make_model(scene.with_overrides({"effects": "viscous"}), model.cloud)
+    params = flow.params(model.cloud.points, stencils)
+    rest = flow.initial_state(model.cloud.points)
+    params["rest"] = rest
+    lam0 = -float(np.log(CONTINUATION_RATIO * scene.tool.omega / scene.material.eps0))
+    found = continuation(
+        _regularised_flow(flow.residual), rest, lam0, params, lam_end=0.0, order=order, tol=tol,
+        scale=flow.scale(), sparsity=flow.sparsity(params), max_steps=max_steps)
+    if found.stopped != "lam_end":
+        raise StepFailure(f"the continuation start flow stopped at lam = {found.lam[-1]:.3g} ({found.stopped}) "
+                          f"after {len(found.lam) - 1} steps, short of lam = 0", step=0, t=0.0,
+                          residual_norm=float(found.residual_norm[-1]))
+    x0 = model.initial_state(model.cloud.points).reshape(len(model.fields), -1)
+    for k, name in enumerate(("u", "v")):
+        x0[model.fields.index(name)] = found.u[-1].reshape(2, -1)[k]
+    found.stats.close(time.perf_counter() - began)
+    report = StartReport(len(found.lam) - 1, np.diff(found.lam).tolist(), found.residual_norm.tolist(), found.stats)
     return x0.reshape(-1), report
