@@ -7,6 +7,7 @@ Lagrangian old-value switch.  The physics is checked in tests/test_fsw_validatio
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import jax
 import jax.numpy as jnp
@@ -120,6 +121,72 @@ def test_bad_values_name_field_value_and_rule(overrides, field, allowed):
     msg = str(info.value)
     assert field in msg and allowed in msg
     assert isinstance(info.value, ValueError)
+
+
+@pytest.mark.parametrize("overrides, field, allowed", [
+    # registration points outside the plate: inside the tool, on its edge, on or beyond R2
+    ({"x": 1.0e-3, "y": 0.5e-3}, "probes[0] (p).x, y", "inside the tool"),
+    ({"x": 0.0, "y": 0.0}, "probes[0] (p).x, y", "inside the tool"),
+    ({"x": 1.5e-3, "y": 0.0}, "probes[0] (p).x, y", "on the tool edge"),
+    ({"x": 0.0, "y": -6e-3}, "probes[0] (p).x, y", "outside the plate"),
+    ({"x": 5e-3, "y": 5e-3}, "probes[0] (p).x, y", "move the registration point into the plate"),
+    # names that would break the columns of probes.csv
+    ({"name": "a,b"}, "probes.name", "letters, digits or '_'"),
+    ({"name": "t"}, "probes.name", "other than 't'"),
+    ({"name": "T-1"}, "probes.name", "probes.csv"),
+])
+def test_bad_probes_are_refused_with_the_fix(overrides, field, allowed):
+    """A registration point must lie in the plate (R1 < r < R2: not in the tool, on its edge or
+    beyond the ring) and be named as a CSV column; refused as a jaxanm.InputError naming the
+    key and the fix, before any computation."""
+    probe = {"name": "p", "x": 3e-3, "y": 0.0, **overrides}
+    with pytest.raises(jaxanm.InputError) as info:
+        Scene.from_dict({"probes": [probe]})
+    assert isinstance(info.value, SceneError)
+    assert field in str(info.value) and allowed in str(info.value)
+
+
+@pytest.mark.parametrize("overrides, field, allowed", [
+    ({"time.atol": 0, "time.rtol": 0}, "time.atol", "must be > 0 with time.adaptive"),
+    ({"time.atol": "0.0", "time.rtol": "0"}, "time.atol", "set e.g. time.atol = 1e-5"),
+    ({"time.atol": -1e-5}, "time.atol", ">= 0"),
+    ({"time.rtol": -1e-3}, "time.rtol", ">= 0"),
+    ({"time.atol": "nan"}, "time.atol", "finite"),
+    ({"time.rtol": "inf"}, "time.rtol", "finite"),
+    ({"time.atol": "-inf"}, "time.atol", "finite"),
+    ({"time.atol": 1.0}, "time.atol", "must be < 1 with time.adaptive"),
+    ({"time.rtol": 5.0}, "time.rtol", "must be < 1 with time.adaptive"),
+])
+def test_bad_controller_tolerances_are_refused(overrides, field, allowed):
+    """``time.atol`` / ``time.rtol`` of an adaptive scene: finite, in [0, 1), not both 0."""
+    with pytest.raises(jaxanm.InputError) as info:
+        load_scene("fsw_small").with_overrides({"time.adaptive": "true", **overrides})
+    assert field in str(info.value) and allowed in str(info.value)
+
+
+def test_tolerances_of_a_fixed_step_scene_are_not_used():
+    """Without time.adaptive the tolerances are unused: only negative or non-finite ones are
+    refused (a scene may carry them for a later --set time.adaptive=true)."""
+    s = load_scene("fsw_small").with_overrides({"time.atol": 0, "time.rtol": 2.0})
+    assert (s.time.atol, s.time.rtol, s.time.adaptive) == (0.0, 2.0, False)
+    with pytest.raises(SceneError, match="time.rtol.*>= 0"):
+        s.with_overrides({"time.rtol": -1.0})
+
+
+@pytest.mark.parametrize("scene, overrides, message", [
+    ("fsw_small", {"effects": "viscous,lagrangian,tracers"}, "exclude each other"),
+    ("fsw_graded", {"effects": "viscous,conduction,lagrangian"}, "'lagrangian' on geometry.layout = 'graded'"),
+    ("fsw_small", {"effects": "conduction", "mechanics.start": "quasi_static"}, "needs the 'viscous' effect"),
+    ("fsw_small", {"mechanics.start": "steady"}, "must be one of"),
+    ("fsw_small", {"thermal.edge_rows": "flux", "thermal.edge_source": "exponential"}, "needs thermal.edge_rows"),
+    ("fsw_small", {"effects": "conduction,tracers"}, "needs ['viscous']"),
+    ("fsw_small", {"solver.pade": "true", "solver.order": 2}, "solver.order >= 3"),
+])
+def test_formulations_the_model_cannot_take_are_refused(scene, overrides, message):
+    """Combinations of options the model does not support, refused at validation as a
+    :class:`jaxanm.InputError` (a :class:`SceneError`), before any computation."""
+    with pytest.raises(jaxanm.InputError, match=re.escape(message)):
+        load_scene(scene).with_overrides(overrides)
 
 
 def test_python_construction_is_validated():

@@ -6,8 +6,9 @@ the nonlinear solver, registration points (probes), registration sections and th
 *effects* (which residual terms and unknowns the model assembles, see :data:`EFFECTS`).
 
 Every value is checked when the scene is built (from Python, from TOML or by
-:meth:`Scene.with_overrides`), before any computation: a bad value raises :class:`SceneError`
-(a ``ValueError``) naming the field, the value and what is allowed.
+:meth:`Scene.with_overrides`), before any computation: a bad value, or a combination of
+options the model cannot take, raises :class:`SceneError` (a :class:`jaxanm.InputError`, hence
+a ``ValueError``) naming the field, the value and what is allowed.
 
 Shipped scenes live in ``jaxanm/fsw/scenes/*.toml``; :func:`load_scene` takes their name
 (``"fsw_paper"``) or a path to a TOML file of the same layout::
@@ -26,6 +27,7 @@ import math
 import tomllib
 from pathlib import Path
 
+from ..errors import InputError
 from ..solvers import ANM, ModifiedNewton, Newton
 
 __all__ = [
@@ -115,10 +117,14 @@ steeply with the order: benchmarks/results/hard_cases.md)."""
 MAX_SAMPLES = 100_000
 """Largest number of samples of a registration section."""
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-.+")
+_COLUMN_CHARS = _NAME_CHARS - set("-.+")
+"""Characters of a probe name: a CSV column name that readers (numpy's ``genfromtxt(names=True)``
+in :mod:`jaxanm.fsw.compare`) keep as it is."""
 
 
-class SceneError(ValueError):
-    """An invalid scene value; the message names the field, the bad value and what is allowed."""
+class SceneError(InputError):
+    """An invalid scene value or combination of options, found before any computation; the
+    message names the field, the bad value and what is allowed (a :class:`jaxanm.InputError`)."""
 
 
 def _fail(field: str, value, allowed: str):
@@ -392,7 +398,8 @@ class Time(_Section):
     estimate (:class:`jaxanm.StepController`), ``dt`` the first step's, the local error of the
     field values at the points below ``atol`` times their scale (omega R1 for u and v, T0 for
     T) plus ``rtol`` times their size; a Lagrangian scene also bounds the steps by the point
-    motion (:func:`jaxanm.fsw.lagrangian.motion_dt_max`).
+    motion (:func:`jaxanm.fsw.lagrangian.motion_dt_max`).  Both tolerances are finite, in
+    ``[0, 1)`` with ``adaptive`` and not both 0 (always ``>= 0``; unused without ``adaptive``).
     """
 
     _name = "time"
@@ -407,9 +414,14 @@ class Time(_Section):
         self._positive("dt", "t_end")
         for name in ("rtol", "atol"):
             value = getattr(self, name)
-            _check(f"time.{name}", value, value >= 0, "must be >= 0")
+            _check(f"time.{name}", value, value >= 0, "must be >= 0 (0 leaves its part out of the error test)")
+            _check(f"time.{name}", value, value < 1 or not self.adaptive,
+                   "must be < 1 with time.adaptive = true: the tolerances are relative (atol to the fields' "
+                   "scales omega R1 and T0, rtol to their values), and 1 accepts an error the size of the "
+                   "field itself; e.g. 1e-5")
         _check("time.atol", self.atol, self.rtol > 0 or self.atol > 0 or not self.adaptive,
-               "time.rtol or time.atol must be > 0 with time.adaptive = true")
+               "time.rtol or time.atol must be > 0 with time.adaptive = true (with both 0 the error test "
+               "accepts no step): set e.g. time.atol = 1e-5, or time.adaptive = false")
         _check("time.dt", self.dt, self.dt <= self.t_end, f"must be <= time.t_end = {self.t_end}")
         _check("time.dt", self.dt, self.dt * MAX_STEPS >= self.t_end,
                f"time.t_end / time.dt asks for more than {MAX_STEPS} steps: use dt >= "
@@ -473,7 +485,17 @@ class SolverSpec(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class Probe(_Section):
-    """A registration point: the plate point nearest ``(x, y)`` at t = 0, followed as it moves."""
+    """A registration point ``(x, y)`` (m) in the plate, ``R1 < r < R2``, whose u, v and T a run
+    records at every step.
+
+    In a fixed-point scene (no ``lagrangian`` effect) the fields are taken at ``(x, y)``
+    itself (MLS values there, :class:`jaxanm.fsw.record.ProbeSites`): the same quantity on
+    every cloud.  In a Lagrangian scene the probe is a material point: the plate point nearest
+    ``(x, y)`` at t = 0, followed as it moves, with its own values (the paper's registration
+    points; :func:`jaxanm.fsw.record.probe_points`).  ``summary.json`` (``probe_positions``)
+    says where each probe was.  ``name``: letters, digits and ``_`` (it names the columns
+    ``<name>_u, <name>_v, <name>_T`` of ``probes.csv``), not ``t``.
+    """
 
     _name = "probes"
     name: str = ""
@@ -481,8 +503,10 @@ class Probe(_Section):
     y: float = 0.0
 
     def _validate(self):
-        _check("probes.name", self.name, bool(self.name) and self.name != "t",
-               "must be a non-empty name other than 't'")
+        _check("probes.name", self.name, 0 < len(self.name) <= 50 and set(self.name) <= _COLUMN_CHARS
+               and self.name != "t",
+               "must be 1-50 letters, digits or '_' other than 't' (it names the probes.csv columns "
+               "<name>_u, <name>_v, <name>_T)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -580,8 +604,10 @@ class Scene:
         _check("probes", names, len(set(names)) == len(names), "probe names must be unique")
         for i, p in enumerate(self.probes):
             r = math.hypot(p.x, p.y)
-            _check(f"probes[{i}] ({p.name})", (p.x, p.y), g.R1 < r < g.R2,
-                   f"must lie in the plate, geometry.R1 = {g.R1} < r < geometry.R2 = {g.R2} (r = {r:.6g})")
+            where = "inside the tool" if r < g.R1 else "on the tool edge" if r == g.R1 else "outside the plate"
+            _check(f"probes[{i}] ({p.name}).x, y", (p.x, p.y), g.R1 < r < g.R2,
+                   f"must lie in the plate, geometry.R1 = {g.R1} < r < geometry.R2 = {g.R2}, but r = "
+                   f"sqrt(x^2 + y^2) = {r:.6g} is {where}: move the registration point into the plate")
         names = [s.name for s in self.sections]
         _check("sections", names, len(set(names)) == len(names), "section names must be unique")
         for i, s in enumerate(self.sections):
