@@ -47,7 +47,7 @@ from .geometry import evaluate_stencils
 from .discretisation import discretise
 from .physics import complete_fields
 from .scene import Scene
-from .record import probe_points
+from .record import ProbeSites
 
 __all__ = ["PARAMETERS", "FitResult", "fit", "gauss_newton", "material_theta", "simulate", "theta_to_material",
            "value_and_grad", "weighted_residuals"]
@@ -143,11 +143,11 @@ def theta_to_material(theta: dict) -> dict:
 def _setup(scene: Scene):
     """Model, params (with the observation stencils under ``"obs"``), initial state."""
     g = scene.geometry
-    cloud, stencils, model, params, x0 = discretise(scene)
-    index, phi = np.asarray(stencils.index), np.asarray(stencils.phi)
+    cloud, _, model, params, x0 = discretise(scene)
     obs = {"probes": {}, "sections": {}}
-    for name, i in probe_points(scene, cloud).items():  # the plate point nearest the probe, as in a run
-        obs["probes"][name] = {"index": index[i:i + 1], "phi": phi[i:i + 1]}
+    sites = ProbeSites.of(scene, cloud)  # at the probe positions, as in a run
+    for j, name in enumerate(sites.names):
+        obs["probes"][name] = {"index": sites.stencils.index[j:j + 1], "phi": sites.stencils.phi[j:j + 1]}
     for s in scene.sections:
         st = evaluate_stencils(cloud.points, cloud.n_tool, g, np.linspace(s.start, s.end, s.samples))
         obs["sections"][s.name] = {"index": np.asarray(st.index), "phi": np.asarray(st.phi)}
@@ -175,7 +175,7 @@ def simulate(scene: Scene, theta: dict, *, solver=None, tangents: bool = True) -
     -------
     :class:`jaxanm.sensitivity.Sensitivities` whose ``observed`` is ``{"t": (M,), "probes":
     {name: {"u", "v", "T": (M,)}}, "sections": {name: {"u", "v", "T": (M, samples)}}}`` (MLS
-    values at t = 0 and after every step; each probe is the plate point nearest its position)
+    values at t = 0 and after every step; each probe at its position)
     and ``jacobian`` the same without ``"t"``, each leaf with a trailing axis over theta's keys
     (``theta_names``).
     """

@@ -10,8 +10,8 @@ same files as ``jaxanm run --out`` and errors are measured by the same
 - IDA's outputs are the scene's save times t > 0 (``time.save`` and ``t_end``), where it ends
   a step exactly (no interpolation); the probe history holds t = 0 and those times only, not
   every internal step.  Compare it with other runs at those times (``time.save``).
-- The registration points are the plate points nearest the scene's probe positions, as in
-  :func:`~jaxanm.fsw.simulate.run` on fixed points (:func:`~jaxanm.fsw.record.probe_points`).
+- The registration points are the scene's probe positions, as in
+  :func:`~jaxanm.fsw.simulate.run` on fixed points (:class:`~jaxanm.fsw.record.ProbeSites`).
 - No tracers: advecting them needs the flow between the outputs (``tracers`` is None; the
   mixing figure then shows the fixed points, i.e. no mixing: read it from an implicit-Euler run).
 - ``stats`` is a :class:`jaxanm.Stats`: ``time_steps`` IDA's internal steps,
@@ -31,7 +31,7 @@ import jaxanm
 from .geometry import evaluate_stencils
 from .discretisation import discretise
 from .scene import Scene
-from .record import FSWResult, probe_points
+from .record import FSWResult, ProbeSites
 
 __all__ = ["IDA_DEFAULTS", "run_ida"]
 
@@ -68,9 +68,12 @@ def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None
     u, v, T = full["u"], full["v"], full["T"]
     t_saved = np.concatenate([[0.0], sol.ts])
     probes = {"t": t_saved}
-    for name, i in probe_points(scene, cloud).items():
-        probes[name] = {"x": np.full(t_saved.size, cloud.points[i, 0]), "y": np.full(t_saved.size, cloud.points[i, 1]),
-                        "u": u[:, i], "v": v[:, i], "T": T[:, i]}
+    sites = ProbeSites.of(scene, cloud)
+    at = [sites.at_rest(model)] + [sites.values(model, x) for x in sol.xs]  # from rest, as a run
+    for j, name in enumerate(sites.names):
+        probes[name] = {"x": np.full(t_saved.size, sites.positions[j, 0]),
+                        "y": np.full(t_saved.size, sites.positions[j, 1]),
+                        **{k: np.array([a[k][j] for a in at]) for k in "uvT"}}
     sections = {"t": t_saved}
     xs = [x0, *sol.xs]
     for sec in scene.sections:

@@ -144,7 +144,7 @@ class MovingRecorder(Recorder):
         if self.tracers is not None:
             self.tracers = self._advected(self.tracers, x, dt)
         if not model.effects.lagrangian:
-            self._record(self.t, self.points, full, save)
+            self._record(self.t, self.points, full, save, self._at_probes(self.points, full, x))
             return params
         # Recorded at t_new: the material points where this step's velocity takes them (the
         # step was solved on the cloud of the previous positions, as before any rezoning).
@@ -164,7 +164,7 @@ class MovingRecorder(Recorder):
             values = self._rezone(x, values)
             full = model.full_values(values)
         self.points = _move(self.points, kind, _velocity(full), omega, dt)
-        self._record(self.t, material, material_values, save)
+        self._record(self.t, material, material_values, save, self._at_probes(material, material_values))
         st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width,
                             neighbours=self.neighbours)
         # re-seeded nodes carry other material's values: a step controller restarts its estimate

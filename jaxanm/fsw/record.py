@@ -3,8 +3,16 @@ steps (the end times of a :class:`jaxanm.SaveAt`'s saved steps), assembled into 
 :class:`FSWResult`.
 
 MLS is not interpolating: what is recorded are field values at the points (and at the section
-samples), not nodal parameters.  The probes are material points, followed as they move; the
-motion itself is :mod:`jaxanm.fsw.lagrangian`.
+samples and probes), not nodal parameters.
+
+The registration points (probes) of a fixed-point scene (no ``lagrangian`` effect) are the
+scene's positions themselves (:class:`ProbeSites`: the MLS values there, from stencils built
+once), so that their histories are the same quantity on every cloud and for every solver.
+Those of a Lagrangian scene are material points: the plate point nearest each position at
+t = 0 (:func:`probe_points`), followed as it moves (the motion is
+:mod:`jaxanm.fsw.lagrangian`); its own collocated values are recorded, so that the paper's
+scene keeps its results (a particle seeded at the position would carry MLS values of the
+sheared cloud instead).
 """
 
 from __future__ import annotations
@@ -15,12 +23,13 @@ import numpy as np
 
 import jaxanm
 
+from .. import mls
 from .discretisation import Model
 from .geometry import PLATE, evaluate_stencils
 from .scene import Scene
 from .start import StartReport
 
-__all__ = ["FSWResult", "Recorder", "probe_points"]
+__all__ = ["FSWResult", "ProbeSites", "Recorder", "probe_points"]
 
 
 @dataclasses.dataclass
@@ -37,8 +46,9 @@ class FSWResult:
         T = T0 without ``conduction``).
     material : (N,) int, 0 tool, 1 plate y > 0 ("blue"), 2 plate y < 0 ("red").
     probes : ``{"t": (M,), name: {"x", "y", "u", "v", "T": (M,)}}`` at t = 0 and every accepted
-        step; each registration point is the plate point nearest the scene's probe position
-        at t = 0, followed as it moves.
+        step, ``x, y`` where each registration point was: the scene's probe position in a
+        fixed-point scene (:class:`ProbeSites`), in a Lagrangian one the plate point nearest it
+        at t = 0, followed as it moves (:func:`probe_points`).
     sections : ``{"t": (S,), name: {"x", "y", "s": (P,), "u", "v", "T": (S, P)}}``: MLS values
         along each registration section at the saved times (``s`` is the abscissa along the
         segment, from its start).
@@ -73,9 +83,58 @@ class FSWResult:
 
 def probe_points(scene: Scene, cloud) -> dict:
     """``{probe name: index of the plate point nearest its position}``: the registration points
-    of a run (and of :func:`jaxanm.fsw.ida_scene.run_ida`), chosen on the initial cloud."""
+    of a Lagrangian run, material points chosen on the initial cloud (fixed-point scenes
+    evaluate the fields at the positions themselves: :class:`ProbeSites`)."""
     plate = np.flatnonzero(cloud.kind == PLATE)
     return {p.name: int(plate[np.argmin(np.hypot(*(cloud.points[plate] - (p.x, p.y)).T))]) for p in scene.probes}
+
+
+@dataclasses.dataclass(frozen=True)
+class ProbeSites:
+    """The registration points of a fixed-point scene at the scene's positions exactly.
+
+    The values-only MLS stencils of the (fixed) cloud at the probe positions are built once;
+    the fields there follow from any state on that cloud (:meth:`values`).  Runs
+    (:class:`Recorder`), :func:`jaxanm.fsw.ida_scene.run_ida` and the calibration's
+    observations use them, so a probe history is the same quantity on every cloud and for
+    every solver.  A probe on a cloud point gets that point's values (the same stencil, to
+    round-off).  The stencils hold numpy arrays: they pickle into checkpoints as they are.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Probe names, in the scene's order.
+    positions : (P, 2) float64
+        The scene's probe positions (m).
+    stencils : jaxanm.mls.Stencils or None
+        Values-only stencils at ``positions`` (``index``, ``phi``); None without probes.
+    """
+
+    names: tuple
+    positions: np.ndarray
+    stencils: mls.Stencils | None
+
+    @classmethod
+    def of(cls, scene: Scene, cloud) -> "ProbeSites":
+        """The probes of ``scene`` on ``cloud`` (its points at t = 0, which do not move)."""
+        positions = np.array([[p.x, p.y] for p in scene.probes], dtype=np.float64).reshape(-1, 2)
+        stencils = None
+        if len(positions):
+            st = evaluate_stencils(cloud.points, cloud.n_tool, scene.geometry, positions, derivatives=False)
+            stencils = dataclasses.replace(st, index=np.asarray(st.index), phi=np.asarray(st.phi))
+        return cls(names=tuple(p.name for p in scene.probes), positions=positions, stencils=stencils)
+
+    def values(self, model: Model, x) -> dict:
+        """``{"u", "v", "T": (P,)}`` at the probes from the unknowns ``x`` on the cloud."""
+        if self.stencils is None:
+            return model.full_values(np.zeros((0, len(model.fields))))
+        return model.full_values(model.values(x, self.stencils))
+
+    def at_rest(self, model: Model) -> dict:
+        """``{"u", "v", "T": (P,)}`` of the plate at rest at T0, where every probe lies (a run
+        started from rest records this at t = 0, as it does at the cloud's plate points)."""
+        rest = np.array([model.scene.thermal.T0 if f == "T" else 0.0 for f in model.fields])
+        return model.full_values(np.tile(rest, (len(self.names), 1)))
 
 
 class Recorder:
@@ -94,9 +153,11 @@ class Recorder:
         cloud = model.cloud
         self.points = cloud.points.copy()
         self.t = 0.0
-        self.probe_index = probe_points(scene, cloud)
+        # probes: fixed ones at the scene's positions, or (Lagrangian) followed plate points
+        self.probe_sites = None if model.effects.lagrangian else ProbeSites.of(scene, cloud)
+        self.probe_index = probe_points(scene, cloud) if model.effects.lagrangian else {}
         self.section_points = {s.name: np.linspace(s.start, s.end, s.samples) for s in scene.sections}
-        self.probes = {"t": [], **{name: {k: [] for k in "xyuvT"} for name in self.probe_index}}
+        self.probes = {"t": [], **{p.name: {k: [] for k in "xyuvT"} for p in scene.probes}}
         self.saved = {"t": [], "points": [], "nodes": [], "u": [], "v": [], "T": []}
         self.sections = {"t": [], **{name: {k: [] for k in "uvT"} for name in self.section_points}}
         self.tracers = cloud.points.copy() if model.effects.tracers else None
@@ -104,22 +165,45 @@ class Recorder:
         self.rezone_times = []
         self.start = start
         self._save_sections(x0)
-        if initial is None:
+        # from rest, the fields at t = 0 are the rest state (not the MLS values of its nodal
+        # parameters, which are not interpolating); after a quasi-static start those of x0
+        from_rest = initial is None
+        if from_rest:
             initial = model.initial_values(self.points)
-        self._record(0.0, self.points, model.full_values(initial), save=True)
+        full = model.full_values(initial)
+        self._record(0.0, self.points, full, save=True,
+                     probes=self._at_probes(self.points, full, None if from_rest else x0))
 
-    def _record(self, t: float, positions: np.ndarray, values: dict, save: bool) -> None:
+    def _at_probes(self, positions: np.ndarray, values: dict, state=None) -> dict:
+        """``{"x", "y", "u", "v", "T": (P,)}`` at the probes in one step.
+
+        Fixed probes (:class:`ProbeSites`): the MLS values of the unknowns ``state`` at the
+        scene's positions (``state = None``: the plate at rest).  Followed ones (Lagrangian):
+        the values ``values`` of their material points at ``positions``.
+        """
+        sites = self.probe_sites
+        if sites is not None:
+            at = sites.at_rest(self.model) if state is None else sites.values(self.model, state)
+            return {"x": sites.positions[:, 0], "y": sites.positions[:, 1], **at}
+        index = np.fromiter(self.probe_index.values(), dtype=np.intp, count=len(self.probe_index))
+        return {"x": positions[index, 0], "y": positions[index, 1], **{k: values[k][index] for k in "uvT"}}
+
+    def _record(self, t: float, positions: np.ndarray, values: dict, save: bool, probes: dict | None = None) -> None:
         """Probe values at every step; fields (and tracers) at the save steps.
 
-        ``positions`` and ``values``: the material points and the fields there.
+        ``positions`` and ``values``: the material points and the fields there; ``probes``:
+        the probes' record of this step (:meth:`_at_probes`; by default that of followed
+        probes, from ``positions`` and ``values``: fixed ones need the state).
         """
+        if probes is None:
+            if self.probe_sites is not None:
+                raise ValueError("fixed probes are MLS values of the state: pass probes=self._at_probes(..., state)")
+            probes = self._at_probes(positions, values)
         self.probes["t"].append(t)
-        for name, i in self.probe_index.items():
+        for j, name in enumerate(p.name for p in self.scene.probes):
             rec = self.probes[name]
-            rec["x"].append(positions[i, 0])
-            rec["y"].append(positions[i, 1])
-            for k in "uvT":
-                rec[k].append(values[k][i])
+            for k in "xyuvT":
+                rec[k].append(probes[k][j])
         if save:
             self.saved["t"].append(t)
             self.saved["points"].append(positions.copy())
@@ -147,7 +231,7 @@ class Recorder:
     def result(self, solver, stats) -> FSWResult:
         """Assemble the :class:`FSWResult`."""
         probes = {"t": np.asarray(self.probes["t"])}
-        for name in self.probe_index:
+        for name in (p.name for p in self.scene.probes):
             probes[name] = {k: np.asarray(v) for k, v in self.probes[name].items()}
         sections = {"t": np.asarray(self.sections["t"])}
         for name, targets in self.section_points.items():

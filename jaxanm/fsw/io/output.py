@@ -3,7 +3,8 @@
 :func:`write_outputs` writes everything a run produces into one directory::
 
     summary.json                   scene, solver settings, t_end, n_points, stats, final probes,
-                                   rezone_times (Lagrangian re-seedings), spatial_accuracy
+                                   probe_positions, rezone_times (Lagrangian re-seedings),
+                                   spatial_accuracy
     fields.npz                     t (S,), points (S, N, 2), u, v, T (S, N), material (N,);
                                    nodes (S, N, 2) when a Lagrangian run was rezoned
     probes.csv                     t, then <probe>_u, <probe>_v, <probe>_T per registration point
@@ -129,12 +130,41 @@ def spatial_accuracy_lines(block: dict | None) -> list[str]:
     return lines
 
 
+def probe_positions(result) -> dict:
+    """Where each registration point of ``result`` was (``summary.json``'s ``probe_positions``).
+
+    ``{name: {"scene": [x, y] or None, "x", "y", "r", "offset_m", "moves"}}``: the scene's
+    position (None for a result without a scene), the recorded one at t = 0 and its radius,
+    their distance (0 for the fixed probes of a fixed-point scene, which sit at the scene's
+    position; in a Lagrangian scene the distance to the plate point nearest it, which the
+    probe follows) and whether the recorded position moved during the run.
+    """
+    from jaxanm.fsw.scene import Scene
+
+    scene = getattr(result, "scene", None)
+    given = {p.name: (p.x, p.y) for p in scene.probes} if isinstance(scene, Scene) else {}
+    out = {}
+    for name in probe_names(result):
+        x = np.asarray(result.probes[name]["x"], dtype=np.float64)
+        y = np.asarray(result.probes[name]["y"], dtype=np.float64)
+        if not x.size:  # no step recorded
+            continue
+        at = given.get(name)
+        out[name] = {"scene": None if at is None else [float(at[0]), float(at[1])],
+                     "x": float(x[0]), "y": float(y[0]), "r": float(np.hypot(x[0], y[0])),
+                     "offset_m": None if at is None else float(np.hypot(x[0] - at[0], y[0] - at[1])),
+                     "moves": bool(np.any(x != x[0]) or np.any(y != y[0]))}
+    return out
+
+
 def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> Path:
     """Write ``summary.json``: scene, solver settings, ``t_end``, ``n_points``, stats, final probes.
 
     ``solver_settings`` is any dict/dataclass describing the solver; ``None`` takes
     ``result.solver``.  ``probes_final`` holds x, y, u, v, T of every registration point at
-    the last accepted step; ``rezone_times`` the times the Lagrangian cloud was re-seeded;
+    the last accepted step; ``probe_positions`` where each was (:func:`probe_positions`: at
+    the scene's position, or the plate point a Lagrangian run followed from near it);
+    ``rezone_times`` the times the Lagrangian cloud was re-seeded;
     ``spatial_accuracy`` the resolution of the tool-edge shear band and the error of the
     temperature rise (:func:`spatial_accuracy`; null for a result without a scene).
     """
@@ -153,6 +183,7 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
         "t_saved": t.tolist(),
         "stats": to_jsonable(result.stats),
         "probes_final": final,
+        "probe_positions": probe_positions(result),
         "rezone_times": [float(t) for t in getattr(result, "rezone_times", [])],
         "spatial_accuracy": spatial_accuracy(result),
     }
