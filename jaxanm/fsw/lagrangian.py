@@ -4,7 +4,12 @@
 - with ``lagrangian``: moves the points (tool and tool-edge points rotate rigidly by
   ``omega dt``, exactly; plate points ``x <- x + dt V``), rebuilds the stencils with the same
   width (nothing recompiles) and refits the unknowns so that the new stencils reproduce the
-  values the points carry (:class:`jaxanm.Remap`);
+  values the points carry (:class:`jaxanm.Remap`).  The plate points' explicit Euler motion
+  (the paper's updated Lagrangian step) drifts outwards on the circular paths by
+  ``omega^2 r dt / 2`` per unit time (:func:`motion_dt_max`); it is kept, for the nodes and
+  for the material points after a rezoning alike, so that fsw_paper reproduces its results
+  (Table 1's factorisations, its probe temperatures) bit for bit, where :func:`advect` would
+  cost one MLS evaluation at every node per step;
 - with ``lagrangian`` and ``geometry.rezone > 0``: when the cloud has sheared too far (some
   plate point's nearest neighbour is closer than ``rezone`` times its distance at the last
   seeding), re-seeds the plate points at their initial layout, with the values the current
@@ -13,7 +18,11 @@
   and the probes) differ: the material points are then advected like tracers, through the
   moving cloud.
 - with ``tracers``: advects passive tracer particles (initially at the points) through the
-  fixed cloud, for the mixing picture.
+  fixed cloud, for the mixing picture: those started on the tool or its edge turn with it,
+  the others move by :func:`advect` (the midpoint rule in polar coordinates about the tool
+  axis: on circles exactly in a circular flow, second order in dt in any steady one, one
+  MLS evaluation a step), so that they stay on their paths at the large steps of a step
+  controller.
 """
 
 from __future__ import annotations
@@ -31,7 +40,7 @@ from .record import Recorder
 from .scene import Scene
 from .start import StartReport
 
-__all__ = ["MovingRecorder", "motion_dt_max"]
+__all__ = ["MovingRecorder", "advect", "motion_dt_max"]
 
 
 def _rotate(points: np.ndarray, angle: float) -> np.ndarray:
@@ -42,6 +51,92 @@ def _rotate(points: np.ndarray, angle: float) -> np.ndarray:
 def _move(points: np.ndarray, kind: np.ndarray, velocity: np.ndarray, omega: float, dt: float) -> np.ndarray:
     """Material motion over dt: tool and edge points rotate rigidly, the others follow V."""
     return np.where(rigid(kind)[:, None], _rotate(points, omega * dt), points + dt * velocity)
+
+
+def _polar(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """(M, 2) angular velocity ``v_theta / r`` and radial velocity ``v_r`` about the centre, of
+    points at ``offset`` (M, 2) from it (none at it) moving at Cartesian ``velocity`` (M, 2)."""
+    dx, dy = offset[:, 0], offset[:, 1]
+    vx, vy = velocity[:, 0], velocity[:, 1]
+    r2 = dx * dx + dy * dy
+    return np.stack([(dx * vy - dy * vx) / r2, (dx * vx + dy * vy) / np.sqrt(r2)], axis=1)
+
+
+def _turned(offset: np.ndarray, span: float, polar: np.ndarray) -> tuple:
+    """Offsets from the centre after ``span`` at the polar velocity ``polar`` (M, 2): turned by
+    ``span v_theta / r`` and the radius moved by ``span v_r``; and the ratio of new to old radius."""
+    angle = span * polar[:, 0]
+    c, s = np.cos(angle), np.sin(angle)
+    ratio = 1.0 + span * polar[:, 1] / np.hypot(offset[:, 0], offset[:, 1])
+    turned = np.stack([c * offset[:, 0] - s * offset[:, 1], s * offset[:, 0] + c * offset[:, 1]], axis=1)
+    return turned * ratio[:, None], ratio
+
+
+def _cartesian_midpoint(offset: np.ndarray, velocity, dt: float) -> tuple:
+    """``x + dt V(x + dt/2 V(x))`` for points at ``offset`` from the centre (``velocity`` takes
+    offsets too), for those :func:`advect` cannot move in polar form; and the polar velocity
+    at the midpoint (0 at the centre)."""
+    mid = offset + 0.5 * dt * np.asarray(velocity(offset), dtype=np.float64)
+    v_mid = np.asarray(velocity(mid), dtype=np.float64)
+    carried = np.zeros_like(offset)
+    away = np.hypot(mid[:, 0], mid[:, 1]) > 0
+    carried[away] = _polar(mid[away], v_mid[away])
+    return offset + dt * v_mid, carried
+
+
+def advect(points: np.ndarray, velocity, dt: float, carried: np.ndarray | None = None,
+           centre=(0.0, 0.0)) -> tuple:
+    """Passive points moved over one step ``dt`` by the flow at the step's end.
+
+    The explicit midpoint rule in polar coordinates about ``centre`` (the tool axis): the
+    angle advances by ``dt v_theta / r`` and the radius by ``dt v_r``, the velocity
+    ``velocity(positions) -> (K, 2)`` (the implicit step's new flow, frozen over the step)
+    taken at the midpoint of the path.  In a circular flow (``v_r = 0``, any ``v_theta(r)``)
+    the points stay on their circles and turn by ``dt v_theta(r) / r`` exactly, at any step
+    size (to round-off), where ``x + dt V`` drifts outwards by ``omega^2 r dt / 2`` per unit
+    time.  Along any other smooth flow it is second order in dt, its error constant growing
+    with ``dt |V| / r`` for the part of the flow that is no rotation about ``centre``.
+
+    One velocity evaluation per step: the midpoint is predicted with ``carried``, the polar
+    velocity (``v_theta / r``, ``v_r``, per point) that this function returned for the
+    previous step.  Taken at that step's midpoint it is O(dt) off, which moves the midpoint by
+    O(dt^2) and the end point by O(dt^3): still second order; in a circular flow the predicted
+    midpoint lies on the circle, so the end point stays exact.  ``carried = None`` (a first
+    step) samples the velocity at ``points`` first: one evaluation more.
+
+    The flow is the one at the step's end: where it changes over a step (the start from rest;
+    a tool travelling through the plate, seen from the plate) the paths are first order in
+    time, as the implicit-Euler fields are; where it is steady (the stirring once started, a
+    travelling tool seen from the tool), second order.
+
+    Points at the centre, or whose radius half a step would shrink below half of it (a flow
+    through the centre, where the polar form fails), take the Cartesian midpoint rule
+    ``x + dt V(x + dt/2 V(x))`` instead (two evaluations for those points).
+
+    Returns the moved points (M, 2) and the polar velocity (M, 2) to carry to the next step.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    centre = np.asarray(centre, dtype=np.float64)
+    offset = points - centre
+    polar = np.hypot(offset[:, 0], offset[:, 1]) > 0
+    if carried is None:
+        carried = np.zeros_like(points)
+        if polar.any():
+            carried[polar] = _polar(offset[polar], np.asarray(velocity(points[polar]), dtype=np.float64))
+    carried = np.asarray(carried, dtype=np.float64)
+    half, ratio = _turned(offset[polar], 0.5 * dt, carried[polar])
+    polar[polar] = ratio >= 0.5
+    moved, out = points.copy(), np.zeros_like(points)
+    if polar.any():
+        half = half[ratio >= 0.5]
+        out[polar] = _polar(half, np.asarray(velocity(centre + half), dtype=np.float64))
+        new, ratio = _turned(offset[polar], dt, out[polar])
+        moved[polar] = centre + new
+        polar[polar] = ratio >= 0.5  # the others are redone below
+    if not polar.all():
+        new, out[~polar] = _cartesian_midpoint(offset[~polar], lambda at: velocity(centre + at), dt)
+        moved[~polar] = centre + new
+    return moved, out
 
 
 def _velocity(values: dict) -> np.ndarray:
@@ -73,11 +168,22 @@ class MovingRecorder(Recorder):
         self.marker_neighbours = neighbour_list(scene.geometry)
         self.tracer_neighbours = neighbour_list(scene.geometry)
         self.refit = Refit()
+        # the tracers' polar velocity of the last step (advect's carried; None: not yet moved)
+        self.tracer_velocity = None
 
     def _advected(self, particles: np.ndarray, x, dt: float) -> np.ndarray:
-        """Passive particles moved over dt by the flow of unknowns ``x`` on the current nodes."""
-        v = self._values_at(x, particles, self.tracer_neighbours)
-        return _move(particles, self.model.cloud.kind, _velocity(v), self.scene.tool.omega, dt)
+        """Tracers moved over dt: those started on the tool or its edge turn with the tool by
+        ``omega dt``, exactly; the others follow the flow of unknowns ``x`` by :func:`advect`
+        (the MLS velocity at their predicted midpoints, one evaluation a step)."""
+        turning = rigid(self.model.cloud.kind)
+        moved = particles.copy()
+        moved[turning] = _rotate(particles[turning], self.scene.tool.omega * dt)
+
+        def velocity(at):
+            return _velocity(self._values_at(x, at, self.tracer_neighbours))
+
+        moved[~turning], self.tracer_velocity = advect(particles[~turning], velocity, dt, self.tracer_velocity)
+        return moved
 
     def _marker_values(self, node_values: dict, at_free: dict) -> dict:
         """Fields at the material points: the nodes' own values where they coincide (tool and
@@ -177,9 +283,10 @@ def motion_dt_max(scene: Scene) -> float:
     points) moves at most a tenth of the spacing dr per step.
 
     The step controller measures the error of the fields, not of the point motion, which is
-    explicit Euler (``x <- x + dt V``): on the circular paths near the tool it drifts outwards
-    by ``omega^2 r dt / 2`` per unit time (1.4 % of r over fsw_paper's 0.7 s at its dt = 1e-4,
-    17 % at this bound of 1.25e-3 s, until a rezoning re-seeds the cloud).  The bound keeps
+    explicit Euler (``x <- x + dt V``) in Lagrangian scenes: on the circular paths near the
+    tool it drifts outwards by ``omega^2 r dt / 2`` per unit time (1.4 % of r over fsw_paper's
+    0.7 s at its dt = 1e-4, 17 % at this bound of 1.25e-3 s, until a rezoning re-seeds the
+    cloud; the tracers of fixed-point scenes move by :func:`advect`, which keeps circles).  The bound keeps
     each step's motion small against the stencils (h = 3 dr) and the neighbour lists' skin
     (h / 4); it is no error control of the motion.
     """
