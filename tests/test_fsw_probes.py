@@ -135,7 +135,7 @@ def test_tracers_turn_on_their_circles_with_the_recorded_flow():
     """The recorder's tracers in a rigidly turning flow, at a controller's largest step (0.2 rad
     a step): those started on the tool or its edge turn with it, the others follow the MLS
     velocity by :func:`advect`; all stay on their circles and reach the angle omega t (1e-11:
-    the MLS reproduction of the flow, against explicit Euler's 0.6 % of r over these steps)."""
+    the MLS reproduction of the flow, against explicit Euler's 80 % of r over these steps)."""
     recorder, cloud, model, params = _recorder(_scene())
     x, dt = _state(model, cloud.points), 1e-2
     for k in range(1, 31):

@@ -3,8 +3,9 @@ update the run's recorder calls, on prescribed velocity fields.
 
 The tool turns at omega = 20 rad/s; a step controller's largest steps (5e-3 to 1e-2 s) turn the
 flow by 0.1-0.2 rad.  ``x + dt V`` drifts outwards on circles by ``omega^2 r dt / 2`` per unit
-time (7 % of r over 0.7 s at dt = 1e-2); the polar midpoint rule of ``advect`` keeps every
-circle and turns by the exact angle, and is second order along other flows.
+time (1.4 % of r over 0.7 s at dt = 1e-4; at dt = 1e-2 the radius grows to
+``(1 + (omega dt)^2)^(n/2)`` = 3.9 times r, out of the plate); the polar midpoint rule of
+``advect`` keeps every circle and turns by the exact angle, and is second order along other flows.
 
 Round-off bounds used below (eps the float64 unit round-off, n steps): the polar velocity of
 ``V = f(r) (-y, x)`` has ``v_theta / r = f (1 + 4 eps)`` and ``|v_r| <= 2 eps |f| r`` (two
