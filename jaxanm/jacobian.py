@@ -14,7 +14,8 @@ affine frontier of :mod:`jaxanm.affine` the chain rule splits it: ``J S = J_rest
 with ``A`` the frontier's linear map, which does not depend on ``x``.  ``A S`` (one ``jvp`` of
 the linear part per colour) depends only on the arguments the linear map reads, the stencil
 weights of a fixed cloud, so :class:`SparseJacobian` keeps it while those stay the same
-objects, and a tangent then costs one ``jvp`` of the cheap pointwise rest per colour.
+objects, and a tangent then costs one ``jvp`` of the cheap pointwise rest per colour (a cloud
+that moves makes ``A S`` anew at each tangent, at about the plain ``jvp``'s cost).
 """
 
 from __future__ import annotations
@@ -147,10 +148,10 @@ class SparseJacobian:
         args = (x_old, t, dt, params)
         if self._chain is None:
             self._chain = _FrontierChain.make(self._residual, x, args, self._seeds.shape[0]) or False
-        compressed = self._chain(self._seeds, self.batch, x, args) if self._chain else None
-        if compressed is None:
-            compressed = self._fn(x, self._seeds, *args)
-        compressed = np.asarray(compressed)
+        if self._chain:
+            compressed = np.asarray(self._chain(self._seeds, self.batch, x, args))
+        else:
+            compressed = np.asarray(self._fn(x, self._seeds, *args))
         data = compressed[self.colors[self._cols], self._rows]
         return scipy.sparse.csc_matrix((data, self._rows, self._indptr), shape=(self.n, self.n))
 
@@ -162,7 +163,6 @@ class _FrontierChain:
     def __init__(self, split, used: list):
         self._used = used  # per flat argument leaf: read by the linear map's tangent
         self._kept_leaves, self._kept = None, None
-        self._moving = False
 
         def seeded_frontier(batch, seeds, x, *args):
             column = lambda s: jax.jvp(lambda y: split.linear(y, *args), (x,), (s,))[1]  # noqa: E731
@@ -200,18 +200,17 @@ class _FrontierChain:
 
     def __call__(self, seeds, batch, x, args):
         """``J S`` (n_colors, n) at ``x`` (``A S`` made ``batch`` colours at a time, as
-        :func:`compressed_jacobian_function`), or None once the arguments the linear map reads
-        have changed between two tangents (a cloud that moves, whose ``A S`` would be made
-        anew for every tangent at more than the cost of the plain seeded ``jvp``)."""
-        if self._moving:
-            return None
+        :func:`compressed_jacobian_function`).
+
+        ``A S`` is made anew whenever the arguments the linear map reads are new objects (a
+        cloud that moves: then about the cost of the plain seeded ``jvp``), never taken from
+        the plain path instead: the tangent is one function of its arguments, whatever came
+        before, so that a run resumed from a checkpoint factorises bit for bit the matrices
+        of an uninterrupted one."""
         leaves = [leaf for leaf, used in zip(jax.tree_util.tree_leaves(args), self._used) if used]
         if self._kept is None or len(leaves) != len(self._kept_leaves) or any(
                 a is not b for a, b in zip(leaves, self._kept_leaves)):
-            if self._kept is not None:
-                self._moving = True
-                self.forget()
-                return None
+            self._kept = None  # freed before the new one is made
             self._kept = self._seeded_frontier(batch, seeds, jnp.asarray(x), *args)
             self._kept_leaves = leaves  # held, so that an identical id cannot be a new object
         return self._chain(self._kept, jnp.asarray(x), *args)
