@@ -36,7 +36,7 @@ FSW_IMPORTS = {
     # results: files and figures of an FSWResult
     "io": set(),
     "io.figures": {"scene", "record"},
-    "io.output": {"scene", "geometry", "record", "axisymmetric", "io", "io.figures"},
+    "io.output": {"scene", "geometry", "record", "axisymmetric", "history", "io", "io.figures"},
     # analyses of a scene or of results, beside the flow
     "axisymmetric": {"scene"},
     "history": set(),

@@ -60,7 +60,7 @@ import scipy.sparse.linalg
 from .scene import Scene
 
 __all__ = ["AxisymmetricSolution", "couette_exact", "couette_shear", "graded_edges",
-           "radial_finite_volumes", "rise_error", "shear_band_width", "solve"]
+           "radial_finite_volumes", "rise_error", "rise_errors", "shear_band_width", "solve"]
 
 
 def couette_exact(r, R1, R2, omega, n):
@@ -496,25 +496,48 @@ def rise_error(result, steps_per_ms: int = 1) -> dict | None:
     error (K).  If the solve's fixed point fails at that step (a scene heating much faster
     than fsw_paper) it is repeated with the scene's own time step.
     """
+    t = np.asarray(result.t, dtype=np.float64)
+    if not (result.scene.has("conduction") and t.size and t[-1] > 0):
+        return None
+    return _rise_errors(result, [t.size - 1], max(10, math.ceil(t[-1] * 1e3 * steps_per_ms)))[0]
+
+
+def rise_errors(result, steps_per_ms: int = 1) -> list:
+    """:func:`rise_error` at every saved time of ``result`` from 10 steps of the reference on
+    (t >= 0.01 s at the default millisecond step), from one solve when the saved times are
+    multiples of that step (else one solve per time); ``[]`` without ``conduction``."""
+    t = np.asarray(result.t, dtype=np.float64)
+    if not result.scene.has("conduction"):
+        return []
+    dt = 1e-3 / steps_per_ms
+    kept = [i for i in range(t.size) if t[i] >= 10 * dt - 1e-12]
+    on_grid = all(abs(t[i] / dt - round(t[i] / dt)) < 1e-6 for i in kept)
+    if kept and on_grid:
+        return [e for e in _rise_errors(result, kept, round(t[kept[-1]] / dt)) if e is not None]
+    return [e for i in kept for e in _rise_errors(result, [i], max(10, math.ceil(t[i] / dt))) if e is not None]
+
+
+def _rise_errors(result, indices: list, steps: int) -> list:
+    """Rise errors (dicts of :func:`rise_error`, None where the continuum has not risen) at
+    the saved steps ``indices``, from one reference solve of ``steps`` steps to the last."""
     scene = result.scene
-    if not scene.has("conduction"):
-        return None
-    t = float(np.asarray(result.t, dtype=np.float64)[-1])
-    if not t > 0:
-        return None
-    steps = max(10, math.ceil(t * 1e3 * steps_per_ms))
+    t = np.asarray(result.t, dtype=np.float64)
+    times = [float(t[i]) for i in indices]
+    dt = times[-1] / steps
     try:
-        ref = solve(scene, [t], refine=1, dt=t / steps)
+        ref = solve(scene, times, refine=1, dt=dt)
     except RuntimeError:  # the source's fixed point: smaller steps
-        steps = max(steps, math.ceil(t / scene.time.dt - 1e-9))
-        ref = solve(scene, [t], refine=1, dt=t / steps)
+        steps = max(steps, math.ceil(times[-1] / scene.time.dt - 1e-9))
+        ref = solve(scene, times, refine=1, dt=times[-1] / steps)
     T0 = scene.thermal.T0
-    r = np.hypot(*np.asarray(result.points[-1], dtype=np.float64).T)
-    rise = ref.temperature(r, 0) - T0
-    run_rise = np.asarray(result.T[-1], dtype=np.float64) - T0
-    norm = float(np.linalg.norm(rise))
-    if not norm > 0:
-        return None
-    return {"t": t, "rel_l2": float(np.linalg.norm(run_rise - rise)) / norm,
+    out = []
+    for k, i in enumerate(indices):
+        r = np.hypot(*np.asarray(result.points[i], dtype=np.float64).T)
+        rise = ref.temperature(r, k) - T0
+        run_rise = np.asarray(result.T[i], dtype=np.float64) - T0
+        norm = float(np.linalg.norm(rise))
+        out.append(None if not norm > 0 else {
+            "t": times[k], "rel_l2": float(np.linalg.norm(run_rise - rise)) / norm,
             "mean_ratio": float(np.mean(run_rise) / np.mean(rise)),
-            "max_abs_K": float(np.max(np.abs(run_rise - rise)))}
+            "max_abs_K": float(np.max(np.abs(run_rise - rise)))})
+    return out

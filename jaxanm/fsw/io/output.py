@@ -93,7 +93,9 @@ def spatial_accuracy(result) -> dict | None:
       (:func:`jaxanm.fsw.geometry.edge_spacing`), and their ratio ``shear_band_points``;
     - with ``conduction``: ``rise_error``, the temperature rise at the last saved time
       against the axisymmetric continuum solution (:func:`jaxanm.fsw.axisymmetric.rise_error`,
-      about a second of 1-D solve): ``rel_l2``, ``mean_ratio``, ``max_abs_K``, ``t``.
+      about a second of 1-D solve): ``rel_l2``, ``mean_ratio``, ``max_abs_K``, ``t``; and
+      ``rise_errors``, the same at every saved time from 0.01 s on (one solve,
+      :func:`jaxanm.fsw.axisymmetric.rise_errors`).
 
     At fsw_paper's dr the band is 0.28 points wide and the rise 15-18 % too high
     (benchmarks/results/spatial_convergence.md).
@@ -109,8 +111,47 @@ def spatial_accuracy(result) -> dict | None:
         width, spacing = axisymmetric.shear_band_width(scene), geometry.edge_spacing(scene.geometry)
         block.update(shear_band_width_m=width, edge_spacing_m=spacing, shear_band_points=width / spacing)
     if scene.has("conduction") and len(np.asarray(result.t)):
-        block["rise_error"] = axisymmetric.rise_error(result)
+        errors = axisymmetric.rise_errors(result)
+        last = errors[-1] if errors and errors[-1]["t"] == float(np.asarray(result.t)[-1]) else None
+        block["rise_error"] = last if last is not None else axisymmetric.rise_error(result)
+        block["rise_errors"] = errors
     return block or None
+
+
+OSCILLATION_WINDOWS = ((0.05, 0.15), (0.3, 0.7))
+"""Spans (s) over which :func:`probe_oscillation` measures the registration points' histories:
+after the start-up transient, and the late quasi-steady heating."""
+
+
+def probe_oscillation(result, degree: int = 2) -> dict | None:
+    """How much the registration points' histories oscillate (``summary.json``'s
+    ``probe_oscillation``): per probe and per window of :data:`OSCILLATION_WINDOWS` that the
+    run covers, the amplitude about a trend of ``degree`` (:func:`jaxanm.fsw.history.oscillation`)
+    of the speed relative to its mean over the window, and of T relative to the mean rise
+    there (T less its value at the first record, the initial temperature).
+
+    Returns ``{"windows": [[t0, t1], ...], "speed": {probe: [...]}, "T": {probe: [...]},
+    "max_speed", "max_T"}`` (the maxima over probes per window), or None when no window is
+    covered or the result has no probe histories.
+    """
+    from jaxanm.fsw.history import oscillation
+
+    names = probe_names(result)
+    t = np.asarray(result.probes.get("t", ()), dtype=np.float64) if names else np.zeros(0)
+    windows = [w for w in OSCILLATION_WINDOWS if t.size and t[0] <= w[0] and t[-1] >= w[1] - 1e-9]
+    if not windows:
+        return None
+    block = {"windows": [list(w) for w in windows], "degree": degree, "speed": {}, "T": {}}
+    for name in names:
+        p = result.probes[name]
+        speed = np.hypot(np.asarray(p["u"], dtype=np.float64), np.asarray(p["v"], dtype=np.float64))
+        T = np.asarray(p["T"], dtype=np.float64)
+        rise = T - T[0]  # T at t = 0 is the initial temperature
+        block["speed"][name] = [oscillation(t, speed, w, degree).relative for w in windows]
+        block["T"][name] = [oscillation(t, rise, w, degree).relative for w in windows]
+    for key in ("speed", "T"):
+        block[f"max_{key}"] = [max(v[k] for v in block[key].values()) for k in range(len(windows))]
+    return block
 
 
 def spatial_accuracy_lines(block: dict | None) -> list[str]:
@@ -127,7 +168,24 @@ def spatial_accuracy_lines(block: dict | None) -> list[str]:
         lines.append(f"T - T0 at t = {err['t']:.6g} s against the axisymmetric continuum solution: "
                      f"{100 * err['rel_l2']:.3g} % rel. L2 error, mean rise {err['mean_ratio']:.3g} x the "
                      f"continuum's, max error {err['max_abs_K']:.3g} K")
+    checked = [e for e in block.get("rise_errors") or [] if e["t"] in CHECKED_TIMES]
+    if checked:
+        lines.append("rel. L2 error of T - T0 at " + ", ".join(
+            f"{e['t']:g} s: {100 * e['rel_l2']:.3g} %" for e in checked))
     return lines
+
+
+CHECKED_TIMES = (0.1, 0.3, 0.7)
+"""Saved times whose rise error the command line prints beside the last one's."""
+
+
+def probe_oscillation_lines(block: dict | None) -> list[str]:
+    """The ``probe_oscillation`` block of ``summary.json`` as lines for the command line."""
+    if not block:
+        return []
+    return [f"registration points, {w[0]:g}-{w[1]:g} s: oscillation about a smooth trend at most "
+            f"{100 * s:.2g} % of the mean speed, {100 * r:.2g} % of the mean rise"
+            for w, s, r in zip(block["windows"], block["max_speed"], block["max_T"])]
 
 
 def probe_positions(result) -> dict:
@@ -166,7 +224,9 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
     the scene's position, or the plate point a Lagrangian run followed from near it);
     ``rezone_times`` the times the Lagrangian cloud was re-seeded;
     ``spatial_accuracy`` the resolution of the tool-edge shear band and the error of the
-    temperature rise (:func:`spatial_accuracy`; null for a result without a scene).
+    temperature rise (:func:`spatial_accuracy`; null for a result without a scene);
+    ``probe_oscillation`` how far the registration points' histories stray from a smooth
+    trend (:func:`probe_oscillation`).
     """
     path = Path(out_dir) / "summary.json"
     final = {}
@@ -186,6 +246,7 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
         "probe_positions": probe_positions(result),
         "rezone_times": [float(t) for t in getattr(result, "rezone_times", [])],
         "spatial_accuracy": spatial_accuracy(result),
+        "probe_oscillation": probe_oscillation(result),
     }
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
