@@ -350,3 +350,27 @@ def test_lagrangian_refit_carries_values():
     expected = s.rho * s.Cp * (scene.thermal.T0 - carried[plate, 2]) / 1e-4 * row_scale
     assert np.allclose(r, expected, rtol=1e-6, atol=1e-9 * np.abs(expected).max())
 
+
+
+def test_a_scene_file_can_start_from_another(tmp_path):
+    # the main job is fsw_graded with its own start, steps and solver: every other value is the base's
+    main, graded = load_scene("fsw"), load_scene("fsw_graded")
+    assert main.name == "fsw" and main.solver.kind == "anm" and main.time.adaptive
+    assert main.mechanics.start == "quasi_static" and main.mechanics.penalty == graded.mechanics.penalty
+    assert main.geometry == graded.geometry and main.material == graded.material
+    assert main.probes == graded.probes and main.effects == graded.effects
+    # a user's file on a shipped scene, then one on that file (relative path); a list replaces
+    (tmp_path / "mine.toml").write_text('base = "fsw_small"\nname = "mine"\n[time]\nt_end = 0.01\n'
+                                        '[[probes]]\nname = "a"\nx = 3e-3\ny = 0.0\n')
+    (tmp_path / "more.toml").write_text('base = "mine.toml"\nname = "more"\n[material]\nn = 0.2\n')
+    more = load_scene(tmp_path / "more.toml")
+    small = load_scene("fsw_small")
+    assert (more.name, more.time.t_end, more.material.n) == ("more", 0.01, 0.2)
+    assert more.material.K == small.material.K and more.time.dt == small.time.dt
+    assert [p.name for p in more.probes] == ["a"]
+    (tmp_path / "loop.toml").write_text('base = "loop.toml"\nname = "loop"\n')
+    with pytest.raises(SceneError, match="cycle"):
+        load_scene(tmp_path / "loop.toml")
+    (tmp_path / "lost.toml").write_text('base = "nowhere"\nname = "lost"\n')
+    with pytest.raises(SceneError, match="unknown scene 'nowhere'"):
+        load_scene(tmp_path / "lost.toml")

@@ -104,7 +104,7 @@ SOLVER_NAMES = {"anm": "anm", "newton": "newton", "mnewton": "modified_newton"}
 ``solver.kind`` of a scene (:class:`SolverSpec`)."""
 SOLVER_KINDS = tuple(SOLVER_NAMES.values())
 """The ``solver.kind`` values a scene accepts."""
-STARTS = ("rest", "quasi_static")
+STARTS = ("rest", "quasi_static", "continuation")
 """Flows at t = 0 (:class:`Mechanics`)."""
 MAX_POINTS = 200_000
 """Largest point cloud a scene may ask for (about ``pi (R2 / dr)^2`` points): checked on load,
@@ -371,8 +371,10 @@ class Mechanics(_Section):
     """Penalty factor ``lambda`` (Pa s) of ``p = -lambda tr(epsdot)`` (paper eq. 9), and the flow at t = 0.
 
     ``start``: ``"rest"`` (the default: the plate at rest, the tool turning; the first step's
-    iteration starts there) or ``"quasi_static"`` (the stationary flow the momentum rows hold
-    at T0, solved on the run's cloud before the first step, :mod:`jaxanm.fsw.start`).  The
+    iteration starts there), ``"quasi_static"`` (the stationary flow the momentum rows hold
+    at T0, solved on the run's cloud before the first step by damped Newton,
+    :mod:`jaxanm.fsw.start`) or ``"continuation"`` (the same flow by the ANM's path following
+    in the strain-rate regularisation).  The
     momentum rows are quasi-static (their inertia spins the plate up in ~1e-8 s), so both
     describe the same physics; from rest Newton's first step does not converge on graded
     clouds finer than 0.085 mm at the tool edge (docs/notes/start_from_rest.md).  Needs the
@@ -386,7 +388,8 @@ class Mechanics(_Section):
     def _validate(self):
         _check("mechanics.penalty", self.penalty, self.penalty >= 0, "must be >= 0 (Pa s)")
         _check("mechanics.start", self.start, self.start in STARTS,
-               f"must be one of {STARTS}: the plate at rest at t = 0, or the quasi-static flow at T0")
+               f"must be one of {STARTS}: the plate at rest at t = 0, or the quasi-static flow at T0 "
+               "(by damped Newton or by continuation)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -590,7 +593,7 @@ class Scene:
             _check("effects", self.effects, not missing,
                    f"effect {e!r} needs {missing} (add them or drop {e!r})")
         _check("mechanics.start", self.mechanics.start, self.mechanics.start == "rest" or "viscous" in have,
-               "'quasi_static' needs the 'viscous' effect (the flow it starts from); use 'rest'")
+               "a start other than 'rest' needs the 'viscous' effect (the flow it solves); use 'rest'")
         _check("effects", self.effects, not {"lagrangian", "tracers"} <= have,
                "'lagrangian' (moving points) and 'tracers' (fixed points) exclude each other")
         _check("effects", self.effects, not ("lagrangian" in have and self.geometry.layout == "graded"),
@@ -700,19 +703,49 @@ def shipped_scenes() -> tuple:
 def load_scene(name_or_path) -> Scene:
     """Load a shipped scene by name (``"fsw_paper"``) or a scene TOML file by path.
 
+    A file may start from another scene: ``base = "fsw_graded"`` (a shipped scene's name, or a
+    path relative to the file) takes that scene's tables, and the file's own keys replace
+    theirs one by one (a list, such as ``[[probes]]``, replaces the base's list whole).
+
     Raises :class:`SceneError` if the name is unknown, the file is not valid TOML, or a value
     is invalid (the message names the field).
     """
+    path = _scene_path(name_or_path)
+    return Scene.from_dict(_scene_table(path, ()), source=str(path))
+
+
+def _scene_path(name_or_path, relative_to: Path | None = None) -> Path:
+    """The TOML file of a shipped scene's name or of a path (relative to ``relative_to``'s folder)."""
     path = Path(name_or_path)
     if path.suffix != ".toml" and not path.exists():
         if str(name_or_path) not in shipped_scenes():
             raise SceneError(f"unknown scene {str(name_or_path)!r}: give a path to a .toml file or "
                              f"one of the shipped scenes {shipped_scenes()}")
         path = SCENES_DIR / f"{name_or_path}.toml"
+    elif relative_to is not None and not path.is_absolute():
+        path = relative_to.parent / path
     if not path.is_file():
         raise SceneError(f"scene file {str(path)!r} does not exist")
+    return path
+
+
+def _scene_table(path: Path, chain: tuple) -> dict:
+    """The TOML table of the scene file ``path`` with its ``base`` scenes' tables under it."""
     try:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"scene file {str(path)!r} is not valid TOML: {exc}") from exc
-    return Scene.from_dict(data, source=str(path))
+    if "base" not in data:
+        return data
+    base = data.pop("base")
+    _check(f"{path}: base", base, isinstance(base, str), "must be a scene name or a path to a .toml file")
+    base_path = _scene_path(base, relative_to=path)
+    _check(f"{path}: base", base, base_path.resolve() not in chain + (path.resolve(),),
+           "makes a cycle of scenes built on each other")
+    merged = _scene_table(base_path, chain + (path.resolve(),))
+    for key, value in data.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = {**merged[key], **value}
+        else:
+            merged[key] = value
+    return merged
