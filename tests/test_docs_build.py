@@ -22,7 +22,8 @@ pytest.importorskip("mkdocstrings", reason="mkdocstrings is not installed: pip i
 
 ROOT = Path(__file__).resolve().parents[1]
 PUBLIC = ["integrate", "ANM", "Newton", "ModifiedNewton", "StepController", "SaveAt",
-          "taylor_coefficients", "jaxanm.fsw.run", "load_scene", "Scene", "FSWResult"]
+          "taylor_coefficients", "jaxanm.fsw.run", "load_scene", "Scene", "FSWResult",
+          "newton_continuation", "Branch"]
 
 
 @pytest.fixture(scope="module")
