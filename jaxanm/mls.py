@@ -455,12 +455,13 @@ class NeighbourList:
     """Neighbour candidates of a moving cloud (a Verlet list), for rebuilding its stencils.
 
     One cKDTree query collects, for every evaluation point (the nodes themselves, or moving
-    targets such as material points), the nodes within ``h + skin``.  Until the nodes and the
-    targets have together moved more than ``skin`` from where the list was made (the largest
-    node move plus the largest target move; for the nodes themselves twice the largest move),
-    every pair now within ``h`` is among those candidates, so the nearest ``m`` within ``h``
-    are found by sorting the candidates' exact distances; beyond that, or for other sizes or
-    another radius, the list is remade.  The result is what
+    targets such as material points), the nodes within its own ``h + skin`` (on a graded cloud
+    h varies tenfold: a common radius would give the fine zone's points a hundred times the
+    candidates they need).  Until the nodes and the targets have together moved more than
+    the ``skin`` left above each point's present h (the largest node move plus that target's
+    move; for the nodes themselves twice the largest move), every pair now within ``h`` is
+    among those candidates, so the nearest ``m`` within ``h`` are found by sorting the
+    candidates' exact distances; beyond that, or for other sizes, the list is remade.  The result is what
     ``cKDTree.query(targets, k=m, distance_upper_bound=h)`` returns (distances computed the
     same way, ``inf`` where fewer than ``m`` are within ``h``; rows with a candidate at ``h``
     to round-off are left to cKDTree), up to the order of equidistant points.  Plain numpy
@@ -476,35 +477,45 @@ class NeighbourList:
         self.skin = float(skin)
         self.reference = None   # (N, 2) node positions when the list was made
         self.targets = None     # (T, 2) target positions then (None: the nodes themselves)
-        self.radius = None      # the h it was made for
+        self.reach = None       # (T,) the radius each target's candidates cover
         self.candidates = None  # (T, K) node indices, N where absent
         self.rebuilds = 0
+        self.width = 0          # the widest stencil it has given (m=None): widths only grow
 
     @staticmethod
     def _moved(now, then) -> float:
         return float(np.sqrt(np.max(np.sum((now - then) ** 2, axis=1))))
 
     def _stale(self, points, targets, h) -> bool:
-        if (self.reference is None or self.reference.shape != points.shape or self.radius != h
+        if (self.reference is None or self.reference.shape != points.shape or self.reach.shape != h.shape
                 or (targets is None) != (self.targets is None)
                 or (targets is not None and targets.shape != self.targets.shape)):
             return True
         moved = self._moved(points, self.reference)
-        moved += moved if targets is None else self._moved(targets, self.targets)
-        return not moved <= self.skin
+        if targets is None:
+            moved = 2.0 * moved
+        else:
+            moved = moved + np.sqrt(np.sum((targets - self.targets) ** 2, axis=1))
+        return not np.all(h + moved <= self.reach)
 
     def query(self, points: np.ndarray, h: np.ndarray, m: int | None, targets: np.ndarray | None = None):
         """``(dist, idx, m)``: the ``m`` nearest nodes closer than ``nextafter(h.max())`` to each
         target (default: to each node, itself first).  ``h`` (T,): radius per target; ``m=None``:
-        the largest count within ``h``, rounded up to a multiple of :data:`M_MAX_MULTIPLE`."""
+        the largest count within ``h``, rounded up to a multiple of :data:`M_MAX_MULTIPLE`, and
+        at least the widest this list has given before (targets that move in and out of a
+        denser zone would otherwise change the width, and the compiled kernel, back and forth;
+        the extra columns are padding, outside every support)."""
         hmax = float(np.nextafter(h.max(), np.inf))
         centers = points if targets is None else targets
-        if self._stale(points, targets, hmax):
+        h_at = np.nextafter(np.broadcast_to(np.asarray(h, dtype=np.float64), (len(centers),)), np.inf)
+        if self._stale(points, targets, h_at):
             tree = cKDTree(points)
-            reach = hmax + self.skin
+            reach = h_at + self.skin
             k = int(tree.query_ball_point(centers, r=reach, return_length=True).max())
-            self.candidates = tree.query(centers, k=max(k, 1), distance_upper_bound=reach)[1].reshape(len(centers), -1)
-            self.reference, self.radius = points.copy(), hmax
+            dist, cand = tree.query(centers, k=max(k, 1), distance_upper_bound=float(reach.max()))
+            dist, cand = dist.reshape(len(centers), -1), cand.reshape(len(centers), -1)
+            cand[~(dist <= reach[:, None])] = points.shape[0]  # beyond this target's own reach
+            self.candidates, self.reference, self.reach = cand, points.copy(), reach
             self.targets = None if targets is None else targets.copy()
             self.rebuilds += 1
         n, cand = points.shape[0], self.candidates
@@ -524,7 +535,8 @@ class NeighbourList:
             counts = (d <= h[:, None]).sum(axis=1)
             if rows.size:
                 counts[rows] = tree.query_ball_point(centers[rows], r=h[rows], return_length=True)
-            m = M_MAX_MULTIPLE * max(1, math.ceil(int(counts.max()) / M_MAX_MULTIPLE))
+            m = max(M_MAX_MULTIPLE * max(1, math.ceil(int(counts.max()) / M_MAX_MULTIPLE)), self.width)
+            self.width = m  # never narrower than before: a new width recompiles the MLS kernel
         flat = (np.argsort(d, axis=1, kind="stable")[:, :m]
                 + cand.shape[1] * np.arange(len(centers))[:, None])
         dist, idx = d.reshape(-1)[flat], cand.reshape(-1)[flat]
