@@ -457,7 +457,7 @@ class _TimeLoop:
                     break
             size = t_new - run.t
             try:
-                x_new, r_norm = self._solve_step(run.x, run.t, size, k)
+                x_new, r_norm = self._sized_solve(size, k)
             except StepFailure:
                 if failures >= o.max_dt_halvings:
                     raise
@@ -480,11 +480,29 @@ class _TimeLoop:
                 stats.rejected_steps += 1
                 h = controller.propose(size, err)
                 continue
-            run.h_next = controller.propose(size, err)
+            run.h_next = controller.next_size(size, err)
             break
         run.history = (y_now if y_now is not None else controller.measured(run.x, run.params), size)
         stats.step_sizes.append(size)
         return t_new, x_new, r_norm
+
+    def _sized_solve(self, size, k):
+        """:meth:`_solve_step` of step k, of size ``size`` from the run's state, with a
+        controller: a K* the solver carries from a step size more than the controller's
+        ``refactor_ratio`` away is dropped first (its factors freed), and the step size of the
+        K* the solver holds afterwards is kept in ``run_state.kstar_dt``."""
+        run, solver = self.run_state, self.solver
+        kstar = solver.factorization(self.state) if solver.reuses_factorization else None
+        if kstar is not None and run.kstar_dt is not None:
+            if max(size / run.kstar_dt, run.kstar_dt / size) > self.options.controller.refactor_ratio:
+                kstar.release()  # before the solver makes the next: one LU alive
+                self.state = solver.with_factorization(self.state, None)
+                kstar = None
+        try:
+            return self._solve_step(run.x, run.t, size, k)
+        finally:  # a failed step may leave a K* it made for the retry (state_after_failure)
+            if solver.factorization(self.state) is not kstar:
+                run.kstar_dt = size
 
     def _save_checkpoint(self) -> None:
         """Write the run's state, what the solver stores of its state and the host state."""
@@ -573,6 +591,7 @@ class _RunState:
     observed: dict | None
     h_next: float | None = None  # with a controller: the size proposed for the next step
     history: tuple | None = None  # with a controller: (measured state before the last step, its size)
+    kstar_dt: float | None = None  # with a controller: the step size the solver's K* was made at
 
     def advance(self, k, t, x, params, *, saved: bool, observe) -> None:
         """Record an accepted step."""

@@ -304,8 +304,10 @@ class StepSolver(abc.ABC):
         """The factorised K* the state holds (or None)."""
         return state.factorization
 
-    def with_factorization(self, state: SolverState, factorization: Factorization) -> SolverState:
-        """``state`` with ``factorization`` as its K* (e.g. a Jacobian factorised by the caller)."""
+    def with_factorization(self, state: SolverState, factorization: Factorization | None) -> SolverState:
+        """``state`` with ``factorization`` as its K* (e.g. a Jacobian factorised by the caller),
+        or with none (``None``: the next step factorises, as at the start of a run; the time
+        loop drops a K* made at a step size far from the next step's this way)."""
         return dataclasses.replace(state, factorization=factorization)
 
     def state_after_failure(self, state: SolverState, failure: StepFailure) -> SolverState:

@@ -34,6 +34,21 @@ Milne's device would read that as a local error that does not shrink with h,
 shrink, grow)``; a rejected step is retried from ``x_n`` with that h, an accepted one proposes
 it for the next step.  ``dt_min`` and ``dt_max`` bound every proposal (``dt_max``: e.g. the
 largest step the point motion of a Lagrangian scene allows).
+
+**Holding the step size.**  The solvers reuse a factorised K* across steps, and K* holds the
+``1/h`` of the time derivative: a K* made at step size h_K solves a step of size h as a
+modified-Newton iteration (or an ANM series) whose contraction on the slow components is
+``|1 - h_K / h|``.  A new size at every step, as the proposals give, keeps K* stale (the ANM,
+whose series from a stale K* tolerates less of that than modified Newton's iteration,
+refactorises far more often than it), and a K* made at a much smaller h fools the
+convergence tests that measure with it (modified Newton's ``|dx|`` and the ANM's end-point
+check shrink with ``h_K / h``, so a step is accepted with its state left behind, and the
+error estimate then grows the next step).  So, as
+BDF codes do, an accepted step's size is kept while the proposal is between h and ``hold``
+times h, and the run drops a K* whose step size is more than ``refactor_ratio`` away from the
+next step's before that step (the solver then factorises at its start, instead of wasting a
+series or trusting a wrong test).  Measured on stiff problems:
+``docs/notes/adaptive_time_steps.md``.
 """
 
 from __future__ import annotations
@@ -45,6 +60,13 @@ from typing import Callable
 import numpy as np
 
 from .errors import InputError
+
+
+HOLD = 1.5
+"""Default :attr:`StepController.hold` (module docstring, "Holding the step size")."""
+
+REFACTOR_RATIO = 1.5
+"""Default :attr:`StepController.refactor_ratio` (module docstring, "Holding the step size")."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,6 +89,15 @@ class StepController:
     error_scale : float or array, optional
         Characteristic magnitude of each quantity of ``error_map`` (default: the run's
         ``scale``, for quantities shaped like x).
+    hold : float
+        After an accepted step of size h, a proposal between h and ``hold * h`` keeps h (as
+        CVODE keeps h below 1.5 h and IDA below 2 h); a larger one is taken, and so is any
+        smaller one.  1: every proposal is taken.  Default :data:`HOLD`.
+    refactor_ratio : float
+        Before a step of size h, a factorised K* the solver carries from a step of size h_K is
+        dropped when ``max(h / h_K, h_K / h)`` exceeds this ratio (as IDA refactorises when its
+        ``alpha / h`` moves by 25 %); the solver then factorises at the start of the step.
+        ``inf``: K* is kept whatever its step size.  Default :data:`REFACTOR_RATIO`.
     """
 
     rtol: float = 1e-3
@@ -78,6 +109,8 @@ class StepController:
     grow: float = 5.0
     error_map: Callable | None = None
     error_scale: object = None
+    hold: float = HOLD
+    refactor_ratio: float = REFACTOR_RATIO
 
     def __post_init__(self):
         for name in ("rtol", "atol"):
@@ -92,6 +125,10 @@ class StepController:
         if not (0 < self.safety <= 1 and 0 < self.shrink < 1 < self.grow):
             raise InputError("StepController needs 0 < safety <= 1 and 0 < shrink < 1 < grow, got "
                              f"safety={self.safety!r}, shrink={self.shrink!r}, grow={self.grow!r}")
+        for name in ("hold", "refactor_ratio"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and not math.isnan(v) and v >= 1):
+                raise InputError(f"StepController.{name} must be a number >= 1 (1: off), got {v!r}")
         if self.error_map is not None and not callable(self.error_map):
             raise InputError("StepController.error_map must be a callable (x, params) -> array")
         if self.error_scale is not None and not np.all(np.isfinite(self.error_scale) & (np.asarray(self.error_scale) > 0)):
@@ -115,6 +152,13 @@ class StepController:
         """Next step size after a step of size h with error norm ``err``."""
         factor = self.grow if err == 0 else min(self.grow, max(self.shrink, self.safety * err ** -0.5))
         return self.clip(h * factor)
+
+    def next_size(self, h: float, err: float) -> float:
+        """Size of the step after an accepted step of size h with error norm ``err``: h itself
+        while :meth:`propose` asks for at most ``hold`` times it (and not less), else the
+        proposal."""
+        proposal = self.propose(h, err)
+        return self.clip(h) if h <= proposal <= self.hold * h else proposal
 
     def clip(self, h: float) -> float:
         """``h`` within ``[dt_min, dt_max]``."""
