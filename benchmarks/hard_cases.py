@@ -24,7 +24,9 @@ against the quasi-static equation instead (see :func:`forced_halving`).
 
 Run ``python benchmarks/hard_cases.py --write`` to print the table and put it into
 ``benchmarks/results/hard_cases.md`` (between its table markers; ``--fast`` runs only the test-suite cases);
-``tests/test_hard_cases.py`` runs the same cases and asserts their outcomes.
+``tests/test_hard_cases.py`` runs the same cases and asserts their outcomes.  ``--spectra``
+tabulates instead the growth rates of conduction_small's implicit-Euler heat step over spacings
+and discretisation settings (:func:`spectra`, docs/notes/collocation_stability.md).
 """
 
 from __future__ import annotations
@@ -39,11 +41,13 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxanm
+from jaxanm.fsw.axisymmetric import radial_finite_volumes
 from jaxanm.fsw.geometry import PLATE, build_cloud, build_stencils
 from jaxanm.fsw.discretisation import discretise, make_model
 from jaxanm.fsw.physics import mu_reference
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run as fsw_run
+from jaxanm.fsw.stability import TemperatureGuard, heat_modes
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
@@ -316,6 +320,55 @@ def near_coincident(delta, solver=None):
     return out
 
 
+COARSE_CONDUCTION = {"geometry.dr": "1.125e-3", "geometry.c": "0.2", "thermal.edge_rows": "flux",
+                     "time.save": "", "time.t_end": "2.0"}
+"""conduction_small at twice its spacing, dr = (R2 - R1) / 4 (113 points), over 2 s: 40 steps
+of the scene's 0.05 s (the scene itself stops at 0.5 s), with the paper's weight c = 0.2 and
+the flux edge rows pinned (the scene's settings when the case was made)."""
+
+STABLE_EDGE = {"geometry.c": "0.3", "thermal.edge_rows": "half_cell"}
+"""The FSW scenes' MLS weight and tool-edge rows: no growing heat mode on any conduction_small
+cloud from dr = (R2 - R1) / 2 to / 16 (docs/notes/collocation_stability.md)."""
+
+
+def _conduction_error(scene, model, stencils, x) -> float:
+    """Max |T - T_ref| / (T0 - Ta) at the points, T_ref the 1-D radial finite volumes at t_end."""
+    tm, th, m, tl, g = scene.time, scene.thermal, scene.material, scene.tool, scene.geometry
+    rc, ref = radial_finite_volumes(g.R1, g.R2, tl.k, m.k, tl.rho * tl.Cp, m.rho * m.Cp, th.h, th.Ta, th.T0,
+                                    tm.dt, round(tm.t_end / tm.dt))
+    T = model.values(x, stencils)[:, model.fields.index("T")]
+    return float(np.max(np.abs(T - np.interp(np.hypot(*model.cloud.points.T), rc, ref))) / (th.T0 - th.Ta))
+
+
+def coarse_conduction(overrides=None, label="c = 0.2, flux rows"):
+    """conduction_small at twice its spacing over 2 s (Newton, the scene's solver), watched by
+    :class:`jaxanm.fsw.stability.TemperatureGuard` (the run's callback).
+
+    With c = 0.2 and flux edge rows (pinned) the implicit-Euler step amplifies a spurious
+    mode of the tool/plate edge pairs by -14.8 per step: unwatched, every step is accepted and
+    the edge temperatures reach 1e35 K at 2 s; watched, the run ends in a DivergenceError that
+    names the mode.  With :data:`STABLE_EDGE` it converges; the note then gives the error
+    against the 1-D radial reference and the step's most amplified mode."""
+    scene = load_scene("conduction_small").with_overrides({**COARSE_CONDUCTION, **(overrides or {})})
+    notes = []
+
+    def go():
+        _, stencils, model, params, x0 = discretise(scene)
+        solver, tm = scene.solver.make(), scene.time
+        guard = TemperatureGuard(model, params, x0)
+        sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver,
+                               scale=model.scale(), jacobian="dense", saveat=jaxanm.SaveAt(steps=1), callback=guard)
+        mode = heat_modes(model, params, x0, tm.dt, count=1, by="amplification")[0]
+        notes.append(f"max error {_conduction_error(scene, model, stencils, sol.xs[-1]):.2g} of T0 - Ta against "
+                     f"the 1-D reference; most amplified mode: {mode.describe()}")
+        return sol.stats, _ratio(solver, model.residual, sol.xs[-1], sol.xs[-2], sol.ts[-1], sol.ts[-1] - sol.ts[-2],
+                                 params, model.scale())
+
+    out = _run_case(f"conduction_small at 2 dr over 2 s, {label} (Newton)", go)
+    out.note = "; ".join(notes)
+    return out
+
+
 def forced_divergence():
     """Stiff impulsive cubic (eps u' = F - u^3 - u, eps = 1e-6, dt = 1e-2): the series from the
     initial tangent cannot reach a = 1, K* is refactorised and the step advances by continuation."""
@@ -382,6 +435,8 @@ CASES = {
     "coincident_0.1": (True, lambda: near_coincident(0.1)),
     "coincident_1e-6": (False, lambda: near_coincident(1e-6, jaxanm.ANM(order=7, tol=1e-6))),
     "coincident_0": (True, lambda: near_coincident(0.0)),
+    "conduction_2dr": (True, coarse_conduction),
+    "conduction_2dr_stable": (False, lambda: coarse_conduction(STABLE_EDGE, "c = 0.3, half-cell edge rows")),
     "forced_divergence": (True, forced_divergence),
     "forced_halving_4": (True, lambda: forced_halving(4)),
     "forced_halving_30": (True, lambda: forced_halving(30)),
@@ -405,9 +460,60 @@ def table(outcomes) -> str:
     return "\n".join(lines)
 
 
+SPECTRA_SETTINGS = {
+    "c = 0.2, flux": {"geometry.c": "0.2", "thermal.edge_rows": "flux"},
+    "c = 0.25, flux": {"geometry.c": "0.25", "thermal.edge_rows": "flux"},
+    "c = 0.3, flux": {"geometry.c": "0.3", "thermal.edge_rows": "flux"},
+    "c = 0.2, half cell": {"geometry.c": "0.2", "thermal.edge_rows": "half_cell"},
+    "c = 0.3, half cell": {"geometry.c": "0.3", "thermal.edge_rows": "half_cell"},
+    "c = 0.2, flux, h = 3.5 dr": {"geometry.c": "0.2", "thermal.edge_rows": "flux", "geometry.h_factor": "3.5"},
+    "c = 0.2, flux, h = 4 dr": {"geometry.c": "0.2", "thermal.edge_rows": "flux", "geometry.h_factor": "4.0"},
+}
+"""The discretisation settings whose heat-step spectra :func:`spectra` tabulates."""
+
+SPECTRA_K = (2, 3, 4, 5, 6, 7, 8, 10, 12, 16)
+"""conduction_small's spacings dr = (R2 - R1) / K of the spectra (K = 8: the scene's, 4: twice it)."""
+
+
+def spectrum_cell(overrides: dict) -> str:
+    """One cell of :func:`spectra`: the rightmost ``mu`` (1/s) of conduction_small's heat step
+    with ``overrides`` at t = 0, tagged ``E`` when its mode lies on the tool/plate edge pairs
+    (over half of its |values|^2 there) or ``I`` elsewhere, and the largest |amplification| of
+    the scene's step (dt = 0.05 s), bold where it exceeds 1."""
+    scene = load_scene("conduction_small").with_overrides({"time.save": "", **overrides})
+    _, _, model, params, x0 = discretise(scene)
+    right = heat_modes(model, params, x0, scene.time.dt, count=1)[0]
+    worst = abs(heat_modes(model, params, x0, scene.time.dt, count=1, by="amplification")[0].amplification)
+    where = "E" if right.share["TOOL_EDGE"] + right.share["PLATE_EDGE"] > 0.5 else "I"
+    amp = f"**{worst:.3g}**" if worst > 1 else f"{worst:.3g}"
+    return f"{right.mu.real:+.4g} {where} / {amp}"
+
+
+def spectra() -> str:
+    """Markdown table: :func:`spectrum_cell` for each setting of :data:`SPECTRA_SETTINGS` (columns)
+    and spacing of :data:`SPECTRA_K` (rows)."""
+    gap = 4.5e-3  # R2 - R1 of conduction_small
+    lines = ["| K | dr (mm) | N | " + " | ".join(SPECTRA_SETTINGS) + " |",
+             "| --- | --- | --- | " + " | ".join("---" for _ in SPECTRA_SETTINGS) + " |"]
+    for K in SPECTRA_K:
+        dr = {"geometry.dr": repr(gap / K)}
+        n = build_cloud(load_scene("conduction_small").with_overrides(dr).geometry).size
+        cells = [spectrum_cell({**dr, **over}) for over in SPECTRA_SETTINGS.values()]
+        lines.append(f"| {K} | {gap / K * 1e3:.4g} | {n} | " + " | ".join(cells) + " |")
+        print(lines[-1], flush=True)
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
-    """Run every case (``--fast``: the test-suite ones), print the table; ``--write`` also puts it into benchmarks/results/hard_cases.md."""
+    """Run every case (``--fast``: the test-suite ones), print the table; ``--write`` also puts it
+    into benchmarks/results/hard_cases.md.  ``--spectra``: the heat-step spectra of
+    :func:`spectra` instead (``--write`` puts them between that file's spectra markers)."""
     argv = sys.argv[1:] if argv is None else argv
+    if "--spectra" in argv:
+        text = spectra()
+        if "--write" in argv:
+            write_table(ROOT / "benchmarks" / "results" / "hard_cases.md", text, SPECTRA_MARKERS)
+        return 0
     outcomes = []
     for key, (fast, make) in CASES.items():
         if "--fast" in argv and not fast:
@@ -424,16 +530,18 @@ def main(argv=None) -> int:
 
 
 BEGIN, END = "<!-- hard-cases-table -->", "<!-- /hard-cases-table -->"
+SPECTRA_MARKERS = ("<!-- heat-spectra-table -->", "<!-- /heat-spectra-table -->")
 
 
-def write_table(path: Path, text: str) -> None:
-    """Put ``text`` between the table markers of ``path`` (the prose around it is kept)."""
-    doc = path.read_text() if path.exists() else f"# Hard cases\n\n{BEGIN}\n{END}\n"
-    if BEGIN not in doc or END not in doc:
-        doc += f"\n{BEGIN}\n{END}\n"
-    head, rest = doc.split(BEGIN, 1)
-    tail = rest.split(END, 1)[1]
-    path.write_text(f"{head}{BEGIN}\n{text}\n{END}{tail}")
+def write_table(path: Path, text: str, markers: tuple = (BEGIN, END)) -> None:
+    """Put ``text`` between the ``markers`` (begin, end) of ``path`` (the prose around it is kept)."""
+    begin, end = markers
+    doc = path.read_text() if path.exists() else f"# Hard cases\n\n{begin}\n{end}\n"
+    if begin not in doc or end not in doc:
+        doc += f"\n{begin}\n{end}\n"
+    head, rest = doc.split(begin, 1)
+    tail = rest.split(end, 1)[1]
+    path.write_text(f"{head}{begin}\n{text}\n{end}{tail}")
 
 
 if __name__ == "__main__":

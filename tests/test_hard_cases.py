@@ -144,6 +144,44 @@ def test_lagrangian_points_drifting_together():
     assert "coincide" in out.message and "remove duplicate points" in out.message
 
 
+def test_coarse_conduction_grows_an_edge_mode_and_ends_named():
+    """conduction_small at twice its spacing: the implicit-Euler heat step has a mode with
+    mu > 0 on the tool/plate edge pairs (r = R1) that the scene's dt amplifies by about -15 a
+    step.  The run ends in a DivergenceError that names it, after about a dozen steps of
+    round-off growth (the step varies with round-off: not pinned).
+
+    Independent check of the eigen-analysis: two short runs by the solver, from the initial
+    state and from it plus the mode's nodal parameters; their difference must be multiplied by
+    the computed amplification at every step (the heat rows are linear, and Newton solves each
+    step to round-off), and the growth rate it implies must be positive."""
+    from jaxanm.fsw.discretisation import discretise
+    from jaxanm.fsw.scene import load_scene
+    from jaxanm.fsw.stability import DivergenceError
+
+    out = _named_error(_run("conduction_2dr"), DivergenceError)
+    exc = out.exception
+    scene = load_scene("conduction_small").with_overrides(hc.COARSE_CONDUCTION)
+    R1, dt = scene.geometry.R1, scene.time.dt
+    assert exc.kind in ("TOOL_EDGE", "PLATE_EDGE") and exc.radius == pytest.approx(R1)
+    assert exc.value < exc.bound < scene.thermal.Ta and 1 < exc.step < 40 and exc.t == pytest.approx(exc.step * dt)
+    mode = exc.modes[0]
+    assert mode.mu.real > 0 and abs(mode.amplification) > 1 and "mu = +" in out.message
+    assert mode.share["TOOL_EDGE"] + mode.share["PLATE_EDGE"] > 0.9 and mode.radius == pytest.approx(R1)
+
+    _, _, model, params, x0 = discretise(scene)
+    kick = np.real(mode.nodal) / np.abs(mode.nodal).max()  # 1 K at most: real for a real eigenvalue
+    assert np.abs(mode.nodal.imag).max() < 1e-9 * np.abs(mode.nodal).max()
+
+    def steps(x):
+        return jaxanm.integrate(model.residual, x, params, t0=0.0, t1=3 * dt, dt=dt, solver=jaxanm.Newton(tol=1e-12),
+                                scale=model.scale(), jacobian="dense").xs
+
+    d = steps(x0 + kick) - steps(x0)
+    measured = [float(d[k + 1] @ d[k] / (d[k] @ d[k])) for k in range(3)]
+    np.testing.assert_allclose(measured, mode.amplification.real, rtol=1e-6)
+    assert (1 - 1 / measured[-1]) / dt > 0  # the growth rate mu of the measured amplification
+
+
 # --------------------------------------------------------------------------------- series cases
 
 def test_forced_divergence_refactorises_and_continues():
