@@ -365,10 +365,10 @@ class _TimeLoop:
             with sigterm_as_interrupt() as self.guard:
                 self._steps()
         except BaseException as exc:
-            if o.checkpoint is not None and not (self.guard is not None and self.guard.held):
-                self._save_checkpoint()  # everything up to the last accepted step (not if recording it failed)
             if isinstance(exc, (StepFailure, KeyboardInterrupt)):
                 exc.stats = stats  # the work done until the failure (factorisations, halvings, ...)
+            if o.checkpoint is not None and not (self.guard is not None and self.guard.held):
+                self._save_checkpoint()  # everything up to the last accepted step (not if recording it failed)
             raise
         finally:
             if self.bar is not None:

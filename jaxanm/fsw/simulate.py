@@ -161,8 +161,11 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
                                checkpoint_every=checkpoint_every, resume=resume, host_state=host,
                                controller=controller)
     except (KeyboardInterrupt, jaxanm.StepFailure) as exc:
-        try:  # the steps recorded so far (consistent: integrate defers signals while recording)
-            exc.partial = recorder.result(solver, latest["stats"])
+        try:  # the steps recorded so far (consistent: integrate defers signals while recording),
+            # with integrate's statistics: they count the work of the step it stopped in, which no
+            # callback reported (the whole run's work when it stopped in its first step)
+            stats = getattr(exc, "stats", None)
+            exc.partial = recorder.result(solver, latest["stats"] if stats is None else stats)
         except Exception:  # noqa: BLE001 - a broken recorder must not hide the original error
             pass
         raise
