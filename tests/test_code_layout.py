@@ -32,7 +32,7 @@ FSW_IMPORTS = {
     "start": {"scene", "geometry", "physics", "discretisation"},
     "record": {"scene", "geometry", "discretisation", "start"},
     "lagrangian": {"scene", "geometry", "discretisation", "start", "record"},
-    "simulate": {"scene", "geometry", "discretisation", "start", "record", "lagrangian"},
+    "simulate": {"scene", "geometry", "discretisation", "start", "record", "lagrangian", "stability"},
     # results: files and figures of an FSWResult
     "io": set(),
     "io.figures": {"scene", "record"},
@@ -44,6 +44,7 @@ FSW_IMPORTS = {
     "energy": {"scene", "geometry", "physics", "discretisation"},
     "calibration": {"scene", "geometry", "physics", "discretisation", "record"},
     "ida_scene": {"scene", "geometry", "discretisation", "record"},
+    "stability": {"geometry", "discretisation"},
 }
 """The :mod:`jaxanm.fsw` modules each fsw module may import (docs/architecture.md): a module
 imports only those upstream of it in the data flow, never one downstream."""

@@ -21,6 +21,7 @@ from .discretisation import Model, discretise
 from .lagrangian import MovingRecorder, motion_dt_max
 from .record import FSWResult
 from .scene import Scene
+from .stability import TemperatureGuard
 from .start import continuation_state, quasi_static_state
 
 _STARTS = {"quasi_static": quasi_static_state, "continuation": continuation_state}
@@ -144,9 +145,13 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     save_times = saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None)
     recorder = MovingRecorder(scene, model, stencils, x0, save_times, initial=initial, start=start)
     latest = {"stats": jaxanm.Stats()}
+    # a temperature outside the range the continuum keeps it in ends the run, named
+    guard = TemperatureGuard.for_model(model, params, x0)
 
     def step_done(t, x, stats):
         latest["stats"] = stats
+        if guard is not None:
+            guard(t, x, stats)
         if callback is not None:
             callback(t, stats)
 
