@@ -66,6 +66,7 @@ def test_probe_oscillation_recovers_a_known_amplitude():
 
 
 def test_probe_oscillation_needs_a_covered_window():
-    # a run to 0.1 s covers neither window whole
+    # a run to 0.1 s covers neither window whole; one stepping 0.05 s has too few samples in them
     assert output.probe_oscillation(_probe_result(0.05, t_end=0.1)) is None
+    assert output.probe_oscillation(_probe_result(0.05, dt=0.05)) is None
     assert output.probe_oscillation_lines(None) == []

@@ -123,6 +123,11 @@ OSCILLATION_WINDOWS = ((0.05, 0.15), (0.3, 0.7))
 after the start-up transient, and the late quasi-steady heating."""
 
 
+OSCILLATION_SAMPLES = 16
+"""Fewest samples of a window :func:`probe_oscillation` measures: a quadratic trend leaves
+few residuals to measure below that (a scene stepping 0.05 s has 3 in 0.05-0.15 s)."""
+
+
 def probe_oscillation(result, degree: int = 2) -> dict | None:
     """How much the registration points' histories oscillate (``summary.json``'s
     ``probe_oscillation``): per probe and per window of :data:`OSCILLATION_WINDOWS` that the
@@ -132,13 +137,14 @@ def probe_oscillation(result, degree: int = 2) -> dict | None:
 
     Returns ``{"windows": [[t0, t1], ...], "speed": {probe: [...]}, "T": {probe: [...]},
     "max_speed", "max_T"}`` (the maxima over probes per window), or None when no window is
-    covered or the result has no probe histories.
+    covered with :data:`OSCILLATION_SAMPLES` samples or the result has no probe histories.
     """
     from jaxanm.fsw.history import oscillation
 
     names = probe_names(result)
     t = np.asarray(result.probes.get("t", ()), dtype=np.float64) if names else np.zeros(0)
-    windows = [w for w in OSCILLATION_WINDOWS if t.size and t[0] <= w[0] and t[-1] >= w[1] - 1e-9]
+    windows = [w for w in OSCILLATION_WINDOWS if t.size and t[0] <= w[0] and t[-1] >= w[1] - 1e-9
+               and np.count_nonzero((t >= w[0]) & (t <= w[1])) >= OSCILLATION_SAMPLES]
     if not windows:
         return None
     block = {"windows": [list(w) for w in windows], "degree": degree, "speed": {}, "T": {}}
