@@ -43,12 +43,11 @@ whose series from a stale K* tolerates less of that than modified Newton's itera
 refactorises far more often than it), and a K* made at a much smaller h fools the
 convergence tests that measure with it (modified Newton's ``|dx|`` and the ANM's end-point
 check shrink with ``h_K / h``, so a step is accepted with its state left behind, and the
-error estimate then grows the next step).  So, as
-BDF codes do, an accepted step's size is kept while the proposal is between h and ``hold``
-times h, and the run drops a K* whose step size is more than ``refactor_ratio`` away from the
-next step's before that step (the solver then factorises at its start, instead of wasting a
-series or trusting a wrong test).  Measured on stiff problems:
-``docs/notes/adaptive_time_steps.md``.
+error estimate, seeing no change, grows the next step).  So, as BDF codes do, an accepted
+step's size is kept while the proposal is between h and ``hold`` times h, and the run drops a
+K* whose step size is more than ``refactor_ratio`` away from the next step's before that step
+(the solver then factorises at its start, instead of wasting a series or trusting a wrong
+test).  Measured on stiff problems: ``docs/notes/adaptive_time_steps.md``.
 """
 
 from __future__ import annotations

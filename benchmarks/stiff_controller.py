@@ -1,0 +1,207 @@
+"""The ANM and modified Newton under the step controller, on classical stiff problems.
+
+Robertson, van der Pol (mu = 1000), HIRES and OREGO (``tests/stiff_problems.py``) are solved
+as implicit-Euler step residuals by :func:`jaxanm.integrate` with
+``StepController(rtol=1e-4, atol=1e-8)``, each problem's ``scale``, a dense Jacobian, and
+four solvers on the same residual:
+
+- ``anm``: ``ANM(adaptive=True)``, the order-adaptive ANM (p <= 7, tol 1e-6, the paper's
+  convex homotopy and eq. 26 relative to the increment);
+- ``anm_state``: ``ANM(adaptive=True, criterion="state")``, the tolerance relative to the
+  state (the FSW scenes' setting);
+- ``anm_newton_state``: ``ANM(adaptive=True, homotopy="newton", criterion="state")``, the
+  ANM whose series gains one power per order from a stale K* and whose tolerance is relative
+  to the state, as modified Newton's;
+- ``mnewton``: ``ModifiedNewton()`` (tol 1e-6, max_rate 0.5).
+
+Each runs under two controllers: ``before``, the controller as it was (``hold=1``,
+``refactor_ratio=inf``: a new step size at every step, K* kept whatever its step size), and
+``after``, the defaults of :class:`jaxanm.StepController` (sizes held while the proposal
+is within ``hold`` of the step, K* dropped before a step whose size is more than
+``refactor_ratio`` away from the one it was made with).
+
+Per problem, every solver runs once first at a loose tolerance (compilation), then the
+configurations run ``--repeats`` times, alternated (all of one repeat before the next), and
+the medians of wall and process (CPU) time are reported with ``os.getloadavg()`` before and
+after; counts are deterministic.  The error is the largest relative error at t1 against the
+reference (``stiff_problems.error``: the Test Set for IVP Solvers' values for HIRES and
+OREGO, Radau at rtol 1e-12 for the others).
+
+    python benchmarks/stiff_controller.py --out benchmarks/results/stiff_controller
+
+Writes ``OUT.json`` (every run) and ``OUT.md`` (the tables).  With ``--grid``, instead, one
+run of every solver per (``hold``, ``refactor_ratio``) of :data:`GRID`, the measurements the
+defaults were chosen by (``OUT_grid.json``, ``OUT_grid.md``; counts, CPU seconds of one run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import pathlib
+import platform
+import statistics
+import sys
+import time
+
+import numpy as np
+
+import jaxanm
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+import stiff_problems  # noqa: E402
+
+RTOL, ATOL = 1e-4, 1e-8
+SOLVERS = {
+    "anm": jaxanm.ANM(adaptive=True),
+    "anm_state": jaxanm.ANM(adaptive=True, criterion="state"),
+    "anm_newton_state": jaxanm.ANM(adaptive=True, homotopy="newton", criterion="state"),
+    "mnewton": jaxanm.ModifiedNewton(),
+}
+CONTROLLERS = {
+    "before": jaxanm.StepController(rtol=RTOL, atol=ATOL, hold=1.0, refactor_ratio=math.inf),
+    "after": jaxanm.StepController(rtol=RTOL, atol=ATOL),
+}
+GRID = [(1.0, math.inf), (1.0, 1.5), (1.5, math.inf), (1.25, 1.25), (1.5, 1.25), (1.5, 1.5), (1.5, 2.0),
+        (2.0, 2.0)]
+"""(hold, refactor_ratio) pairs of ``--grid``: the controller as it was, each change alone, both."""
+COUNTS = ("time_steps", "rejected_steps", "dt_halvings", "factorizations", "series_orders",
+          "newton_iterations", "solves", "residual_evaluations", "substeps")
+
+
+def run_once(p, solver, controller) -> dict:
+    """One run of problem ``p``: its counts, wall and CPU seconds, error at t1."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    sol = jaxanm.integrate(p.residual, p.x0, None, t0=0.0, t1=p.t1, dt=p.dt0, solver=solver,
+                           controller=controller, scale=p.scale, jacobian="dense",
+                           saveat=jaxanm.SaveAt(ts=[]))
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    row = {k: getattr(sol.stats, k) for k in COUNTS}
+    row.update(wall_s=wall, cpu_s=cpu, error=stiff_problems.error(p, sol.xs[-1]),
+               wall_split={k: round(v, 4) for k, v in sol.stats.wall_time.items()})
+    return row
+
+
+def measure(name: str, repeats: int) -> list[dict]:
+    """Every (controller, solver) on problem ``name``, alternated ``repeats`` times."""
+    p = stiff_problems.problem(name)
+    loose = jaxanm.StepController(rtol=1e-2, atol=1e-4)
+    for solver in SOLVERS.values():  # compile (jet orders, residual, tangent) once per solver
+        run_once(p, solver, loose)
+    runs = {}
+    for r in range(repeats):
+        for cname, controller in CONTROLLERS.items():
+            for sname, solver in SOLVERS.items():
+                load = os.getloadavg()[0]
+                row = run_once(p, solver, controller)
+                row["load"] = [load, os.getloadavg()[0]]
+                runs.setdefault((cname, sname), []).append(row)
+                print(f"{name} {cname} {sname} #{r}: {row['factorizations']} factorisations, "
+                      f"{row['time_steps']} steps, wall {row['wall_s']:.2f} s, cpu {row['cpu_s']:.2f} s, "
+                      f"error {row['error']:.3g}, load {row['load'][0]:.1f}", flush=True)
+    rows = []
+    for (cname, sname), rs in runs.items():
+        counts = {k: rs[0][k] for k in COUNTS}
+        assert all({k: x[k] for k in COUNTS} == counts for x in rs), "counts differ between repeats"
+        rows.append({"problem": name, "controller": cname, "solver": sname, **counts, "error": rs[0]["error"],
+                     "wall_s": statistics.median(x["wall_s"] for x in rs),
+                     "cpu_s": statistics.median(x["cpu_s"] for x in rs),
+                     "walls": [x["wall_s"] for x in rs], "cpus": [x["cpu_s"] for x in rs],
+                     "loads": [x["load"] for x in rs], "wall_split": rs[-1]["wall_split"]})
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    """The markdown table: one line per (problem, controller, solver), ratios to mnewton."""
+    ref = {(r["problem"], r["controller"]): r for r in rows if r["solver"] == "mnewton"}
+    lines = ["| problem | controller | solver | steps | rejected | halvings | factorisations (x mnewton) | "
+             "series orders / Newton its | solves | wall s (x mnewton) | CPU s (x mnewton) | error at t1 |",
+             "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for r in rows:
+        m = ref[(r["problem"], r["controller"])]
+        work = r["series_orders"] if r["solver"] != "mnewton" else r["newton_iterations"]
+        lines.append(f"| {r['problem']} | {r['controller']} | {r['solver']} | {r['time_steps']} | "
+                     f"{r['rejected_steps']} | {r['dt_halvings']} | {r['factorizations']} "
+                     f"({r['factorizations'] / m['factorizations']:.2f}) | {work} | {r['solves']} | "
+                     f"{r['wall_s']:.2f} ({r['wall_s'] / m['wall_s']:.2f}) | "
+                     f"{r['cpu_s']:.2f} ({r['cpu_s'] / m['cpu_s']:.2f}) | {r['error']:.3g} |")
+    return "\n".join(lines)
+
+
+def _json_number(v: float):
+    """``v``, or the string "inf" (JSON has no infinity)."""
+    return v if math.isfinite(v) else "inf"
+
+
+def grid(names, out: pathlib.Path, meta: dict) -> None:
+    """One run of every solver per :data:`GRID` pair on each problem; ``OUT_grid.{json,md}``."""
+    rows = []
+    for name in names:
+        p = stiff_problems.problem(name)
+        for solver in SOLVERS.values():
+            run_once(p, solver, jaxanm.StepController(rtol=1e-2, atol=1e-4))
+        for hold, ratio in GRID:
+            controller = jaxanm.StepController(rtol=RTOL, atol=ATOL, hold=hold, refactor_ratio=ratio)
+            for sname, solver in SOLVERS.items():
+                row = {"problem": name, "hold": hold, "refactor_ratio": _json_number(ratio), "solver": sname,
+                       **run_once(p, solver, controller)}
+                rows.append(row)
+                print(f"{name} hold {hold} refactor_ratio {ratio} {sname}: {row['factorizations']} "
+                      f"factorisations, {row['time_steps']} steps, {row['rejected_steps']} rejected, "
+                      f"error {row['error']:.3g}", flush=True)
+    meta["loadavg_end"] = os.getloadavg()
+    stem = out.parent / (out.name + "_grid")
+    stem.with_suffix(".json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    lines = [f"# Holding the step size: hold x refactor_ratio (`{meta['command']}`)\n",
+             f"StepController(rtol={RTOL:g}, atol={ATOL:g}, hold, refactor_ratio); one run each; "
+             "factorisations / steps / rejected steps / error at t1; CPU seconds of the run (load "
+             f"{meta['loadavg_start'][0]:.1f} to {meta['loadavg_end'][0]:.1f}).\n",
+             "| problem | hold | refactor_ratio | " + " | ".join(SOLVERS) + " |",
+             "| --- | ---: | ---: | " + " | ".join("---" for _ in SOLVERS) + " |"]
+    for name in names:
+        for hold, ratio in GRID:
+            cells = []
+            for sname in SOLVERS:
+                r = next(x for x in rows if (x["problem"], x["hold"], x["refactor_ratio"], x["solver"])
+                         == (name, hold, _json_number(ratio), sname))
+                cells.append(f"{r['factorizations']} / {r['time_steps']} / {r['rejected_steps']} / "
+                             f"{r['error']:.3g} / {r['cpu_s']:.1f} s")
+            lines.append(f"| {name} | {hold:g} | {ratio:g} | " + " | ".join(cells) + " |")
+    stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--problems", default="robertson,vanderpol,hires,orego")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "stiff_controller"))
+    ap.add_argument("--grid", action="store_true", help="the hold x refactor_ratio grid instead")
+    args = ap.parse_args()
+    meta = {"command": " ".join(sys.argv), "machine": platform.processor() or platform.machine(),
+            "cpus": os.cpu_count(), "loadavg_start": os.getloadavg(), "rtol": RTOL, "atol": ATOL,
+            "solvers": {k: repr(v) for k, v in SOLVERS.items()},
+            "controllers": {k: repr(v) for k, v in CONTROLLERS.items()}, "repeats": args.repeats}
+    out = pathlib.Path(args.out)
+    if args.grid:
+        return grid(args.problems.split(","), out, meta)
+    rows = []
+    for name in args.problems.split(","):
+        rows.extend(measure(name, args.repeats))
+    meta["loadavg_end"] = os.getloadavg()
+    out.with_suffix(".json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    md = (f"# The ANM and modified Newton under the step controller (`benchmarks/stiff_controller.py`)\n\n"
+          f"`{meta['command']}`; StepController(rtol={RTOL:g}, atol={ATOL:g}); {meta['cpus']} CPUs, "
+          f"load {meta['loadavg_start'][0]:.1f} at the start, {meta['loadavg_end'][0]:.1f} at the end "
+          f"(per run in the JSON). Wall and CPU: medians of {args.repeats} alternated runs; "
+          "counts are the same in every run.\n\n" + table(rows) + "\n")
+    out.with_suffix(".md").write_text(md)
+    print(md)
+
+
+if __name__ == "__main__":
+    np.set_printoptions(precision=4)
+    main()
