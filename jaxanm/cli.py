@@ -341,14 +341,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _accuracy_lines(paths) -> list[str]:
     """The accuracy lines of the run's ``summary.json`` (none if it was not written): the
-    spatial accuracy and the registration points' oscillation."""
-    from jaxanm.fsw.io.output import probe_oscillation_lines, spatial_accuracy_lines
+    spatial accuracy, the time error estimate and the registration points' oscillation."""
+    from jaxanm.fsw.io.output import probe_oscillation_lines, spatial_accuracy_lines, time_error_lines
 
     summary = next((p for p in paths if Path(p).name == "summary.json"), None)
     if summary is None:
         return []
     block = json.loads(Path(summary).read_text(encoding="utf-8"))
-    return spatial_accuracy_lines(block.get("spatial_accuracy")) + probe_oscillation_lines(block.get("probe_oscillation"))
+    spatial = block.get("spatial_accuracy")
+    return (spatial_accuracy_lines(spatial) + time_error_lines(block.get("time_error"), spatial)
+            + probe_oscillation_lines(block.get("probe_oscillation")))
 
 
 def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> str:

@@ -54,6 +54,12 @@ class Solution:
     ``params`` holds the parameter pytree at each saved time when ``SaveAt(params=True)``
     (e.g. moving Lagrangian point clouds), else ``None``; ``observed`` the quantities recorded
     by ``SaveAt(fn=...)`` at every step (``{"t": (M,), key: (M, ...)}``), else ``None``.
+    ``time_error``: with a controller, an estimate of the time discretisation's error at t1
+    in the quantities it measures (its ``error_map``): the sum of the local error estimates of
+    the accepted steps (Milne's device).  It leaves out how earlier errors propagate: where
+    they decay (diffusion) and the local errors keep their sign, it errs on the large side.
+    The first step, and the first after a ``Remap(history=False)``, have no estimate and add
+    nothing.  None without a controller.
     """
 
     ts: np.ndarray
@@ -61,6 +67,7 @@ class Solution:
     stats: Stats
     params: list | None = None
     observed: dict | None = None
+    time_error: np.ndarray | None = None
 
 
 def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, saveat=None, controller=None):
@@ -377,7 +384,8 @@ class _TimeLoop:
         if o.checkpoint is not None:
             self._save_checkpoint()
         observed = None if o.saveat.fn is None else {key: np.asarray(v) for key, v in run.observed.items()}
-        return Solution(ts=np.asarray(run.ts), xs=np.asarray(run.xs), stats=stats, params=run.ps, observed=observed)
+        return Solution(ts=np.asarray(run.ts), xs=np.asarray(run.xs), stats=stats, params=run.ps, observed=observed,
+                        time_error=run.time_error)
 
     def _steps(self) -> None:
         """The time steps: fixed ones of dt (the last ending on t1), or sized by the controller."""
@@ -469,7 +477,9 @@ class _TimeLoop:
                 run.h_next = controller.clip(h)
                 break
             y_before, h_prev = run.history
-            err = controller.error(controller.measured(x_new, run.params), y_now, y_before, size, h_prev, self.scale)
+            y_new = controller.measured(x_new, run.params)
+            local = controller.local_error(y_new, y_now, y_before, size, h_prev)
+            err = controller.norm(local, y_new, self.scale)
             # refused: retried from x_n with a smaller step, unless the proposal is already at
             # dt_min (compared before the end-point snapping, which rounds the size)
             if err > 1 and h > controller.dt_min:
@@ -481,6 +491,7 @@ class _TimeLoop:
                 h = controller.propose(size, err)
                 continue
             run.h_next = controller.next_size(size, err)
+            run.time_error = local if run.time_error is None else run.time_error + local
             break
         run.history = (y_now if y_now is not None else controller.measured(run.x, run.params), size)
         stats.step_sizes.append(size)
@@ -592,6 +603,7 @@ class _RunState:
     h_next: float | None = None  # with a controller: the size proposed for the next step
     history: tuple | None = None  # with a controller: (measured state before the last step, its size)
     kstar_dt: float | None = None  # with a controller: the step size the solver's K* was made at
+    time_error: np.ndarray | None = None  # with a controller: the sum of the local error estimates
 
     def advance(self, k, t, x, params, *, saved: bool, observe) -> None:
         """Record an accepted step."""

@@ -137,12 +137,20 @@ class StepController:
         """The quantities the local error is measured in, at state ``x`` on ``params``."""
         return np.asarray(x if self.error_map is None else self.error_map(x, params), dtype=np.float64)
 
+    @staticmethod
+    def local_error(y_new, y_now, y_before, h: float, h_prev: float) -> np.ndarray:
+        """Milne's estimate of the local error of the step ``y_now -> y_new`` of size h, the
+        step before it ``y_before -> y_now`` of size ``h_prev`` (module docstring), in the
+        measured quantities."""
+        return 0.5 * (y_new - (y_now + (h / h_prev) * (y_now - y_before)))
+
     def error(self, y_new, y_now, y_before, h: float, h_prev: float, scale) -> float:
-        """Weighted RMS norm of the local error of the step ``y_now -> y_new`` of size h, the
-        step before it ``y_before -> y_now`` of size ``h_prev`` (Milne's device); ``scale``:
-        the run's, used unless the controller has its own ``error_scale``."""
-        predicted = y_now + (h / h_prev) * (y_now - y_before)
-        local = 0.5 * (y_new - predicted)
+        """Weighted RMS norm of :meth:`local_error`; ``scale``: the run's, used unless the
+        controller has its own ``error_scale``."""
+        return self.norm(self.local_error(y_new, y_now, y_before, h, h_prev), y_new, scale)
+
+    def norm(self, local, y_new, scale) -> float:
+        """Weighted RMS norm of a local error ``local`` at the step's end state ``y_new``."""
         scale = scale if self.error_scale is None else self.error_scale
         weight = self.atol * scale + self.rtol * np.abs(y_new)
         return float(np.sqrt(np.mean((local / weight) ** 2)))

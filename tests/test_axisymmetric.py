@@ -252,6 +252,6 @@ def test_summary_reports_band_resolution_and_rise_error(tmp_path):
     from jaxanm import cli
 
     assert cli._accuracy_lines([tmp_path / "fields.npz", tmp_path / "summary.json"]) == \
-        output.spatial_accuracy_lines(summary["spatial_accuracy"]) + output.probe_oscillation_lines(
-            summary["probe_oscillation"])
+        output.spatial_accuracy_lines(summary["spatial_accuracy"]) + output.time_error_lines(
+            summary["time_error"]) + output.probe_oscillation_lines(summary["probe_oscillation"])
     assert cli._accuracy_lines([]) == []

@@ -162,3 +162,21 @@ def test_an_error_that_does_not_shrink_with_the_step_fails_by_name_or_is_accepte
     sol = jaxanm.integrate(_jump, np.zeros(1), None, controller=jaxanm.StepController(rtol=0, atol=1e-6, dt_min=1e-3),
                            **kw)
     assert sol.ts[-1] == 1.0 and sol.xs[-1, 0] == 1.0
+
+
+def test_time_error_estimate_bounds_the_global_error_of_a_decaying_problem():
+    # u' = -k u, exact e^(-k t).  Implicit Euler's local errors here all have one sign, and
+    # each decays by e^(-k (t1 - t_n)) on the way to t1: their plain sum (the estimate) is at
+    # least the true error at t1 and at most e^(k (t1 - t0)) times it (the decay it leaves out)
+    def residual(u, u_old, t, dt, p):
+        return (u - u_old) / dt + p["k"] * u
+
+    k = np.array([0.5, 1.0, 2.0])
+    sol = jaxanm.integrate(residual, np.ones(3), {"k": k}, t0=0.0, t1=2.0, dt=1e-3,
+                           solver=jaxanm.ModifiedNewton(tol=1e-12),
+                           controller=jaxanm.StepController(rtol=0.0, atol=1e-4))
+    ratio = sol.time_error / (sol.xs[-1] - np.exp(-2.0 * k))
+    assert np.all(ratio >= 1.0) and np.all(ratio <= np.exp(2.0 * k)), ratio
+    fixed = jaxanm.integrate(residual, np.ones(3), {"k": k}, t0=0.0, t1=0.1, dt=1e-2,
+                             solver=jaxanm.ModifiedNewton())
+    assert fixed.time_error is None  # no controller, no estimate

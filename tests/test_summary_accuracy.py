@@ -70,3 +70,18 @@ def test_probe_oscillation_needs_a_covered_window():
     assert output.probe_oscillation(_probe_result(0.05, t_end=0.1)) is None
     assert output.probe_oscillation(_probe_result(0.05, dt=0.05)) is None
     assert output.probe_oscillation_lines(None) == []
+
+
+def test_time_error_block_beside_the_spatial_error():
+    # an estimate of 1 % of the rise at every point: rel. L2 0.01, the largest 1 % of the top
+    scene = load_scene("fsw_tracers")
+    rise = np.linspace(0.0, 80.0, 50)
+    res = types.SimpleNamespace(scene=scene, t=np.array([0.0, 0.7]), T=np.stack([np.zeros(50), rise]) + 300.0,
+                                time_error=0.01 * rise)
+    block = output.time_error(res)
+    assert block["t"] == 0.7 and block["rel_l2"] == pytest.approx(0.01) and block["max_abs_K"] == pytest.approx(0.8)
+    line = output.time_error_lines(block, {"rise_error": {"t": 0.7, "rel_l2": 0.016}})
+    assert line == ["time error estimate at t = 0.7 s (sum of the controller's local errors): 1 % of the rise, "
+                    "max 0.8 K, against a spatial error of 1.6 %"]
+    res.time_error = None  # fixed steps
+    assert output.time_error(res) is None and output.time_error_lines(None) == []

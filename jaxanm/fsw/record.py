@@ -60,8 +60,12 @@ class FSWResult:
         Lagrangian run was rezoned (they differ from ``points`` from the first rezoning on);
         else None (the nodes are the material points).
     rezone_times : times at which the plate points were re-seeded (empty without rezoning).
-    start : with ``mechanics.start = "quasi_static"``, the :class:`~jaxanm.fsw.start.StartReport`
-        of the flow solved at t = 0 (its factorisations are not in ``stats``); else None.
+    start : with ``mechanics.start`` other than ``"rest"``, the
+        :class:`~jaxanm.fsw.start.StartReport` of the flow solved at t = 0 (its factorisations
+        are not in ``stats``); else None.
+    time_error : with ``time.adaptive``, the controller's estimate of the time error at the
+        end, in the quantities it measures (T at the points; :attr:`jaxanm.Solution.time_error`);
+        else None.
     """
 
     scene: Scene
@@ -79,6 +83,7 @@ class FSWResult:
     nodes: np.ndarray | None = None
     rezone_times: list = dataclasses.field(default_factory=list)
     start: StartReport | None = None
+    time_error: np.ndarray | None = None
 
 
 def probe_points(scene: Scene, cloud) -> dict:
@@ -228,8 +233,8 @@ class Recorder:
                                derivatives=False, neighbours=neighbours)  # values only: 2x cheaper
         return self.model.full_values(self.model.values(x, st))
 
-    def result(self, solver, stats) -> FSWResult:
-        """Assemble the :class:`FSWResult`."""
+    def result(self, solver, stats, time_error=None) -> FSWResult:
+        """Assemble the :class:`FSWResult` (``time_error``: the controller's estimate, if any)."""
         probes = {"t": np.asarray(self.probes["t"])}
         for name in (p.name for p in self.scene.probes):
             probes[name] = {k: np.asarray(v) for k, v in self.probes[name].items()}
@@ -248,4 +253,4 @@ class Recorder:
                          T=np.asarray(self.saved["T"]), material=self.model.cloud.material.copy(),
                          probes=probes, sections=sections, stats=stats, solver=solver, tracers=tracers,
                          nodes=nodes if self.rezone_times else None, rezone_times=list(self.rezone_times),
-                         start=self.start)
+                         start=self.start, time_error=time_error)

@@ -174,4 +174,4 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         except Exception:  # noqa: BLE001 - a broken recorder must not hide the original error
             pass
         raise
-    return recorder.result(solver, sol.stats)
+    return recorder.result(solver, sol.stats, sol.time_error)

@@ -118,6 +118,38 @@ def spatial_accuracy(result) -> dict | None:
     return block or None
 
 
+def time_error(result) -> dict | None:
+    """The controller's estimate of the time error at the run's end (``summary.json``'s
+    ``time_error``), beside the spatial error: ``{"t", "rel_l2", "max_abs_K"}``, the estimate
+    (:attr:`jaxanm.Solution.time_error`: the sum of the steps' local error estimates of T at
+    the points) relative to the rise ``T - T0`` there in the L2 norm over the points, and its
+    largest value (K).  None for a run without a controller or without temperatures."""
+    estimate = getattr(result, "time_error", None)
+    scene = getattr(result, "scene", None)
+    if estimate is None or scene is None or not scene.has("conduction"):
+        return None
+    estimate = np.asarray(estimate, dtype=np.float64)
+    rise = np.asarray(result.T[-1], dtype=np.float64) - scene.thermal.T0
+    norm = float(np.linalg.norm(rise))
+    if estimate.shape != rise.shape or not norm > 0:
+        return None
+    return {"t": float(np.asarray(result.t)[-1]), "rel_l2": float(np.linalg.norm(estimate)) / norm,
+            "max_abs_K": float(np.abs(estimate).max())}
+
+
+def time_error_lines(block: dict | None, spatial: dict | None = None) -> list[str]:
+    """The ``time_error`` block of ``summary.json`` as a line, beside the spatial error at
+    the same time when the ``spatial_accuracy`` block has it."""
+    if not block:
+        return []
+    line = (f"time error estimate at t = {block['t']:.6g} s (sum of the controller's local errors): "
+            f"{100 * block['rel_l2']:.2g} % of the rise, max {block['max_abs_K']:.2g} K")
+    err = (spatial or {}).get("rise_error")
+    if err and err["t"] == block["t"]:
+        line += f", against a spatial error of {100 * err['rel_l2']:.3g} %"
+    return [line]
+
+
 OSCILLATION_WINDOWS = ((0.05, 0.15), (0.3, 0.7))
 """Spans (s) over which :func:`probe_oscillation` measures the registration points' histories:
 after the start-up transient, and the late quasi-steady heating."""
@@ -232,7 +264,8 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
     ``spatial_accuracy`` the resolution of the tool-edge shear band and the error of the
     temperature rise (:func:`spatial_accuracy`; null for a result without a scene);
     ``probe_oscillation`` how far the registration points' histories stray from a smooth
-    trend (:func:`probe_oscillation`).
+    trend (:func:`probe_oscillation`); ``time_error`` the step controller's estimate of the
+    time error (:func:`time_error`; null with fixed steps).
     """
     path = Path(out_dir) / "summary.json"
     final = {}
@@ -253,6 +286,7 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
         "rezone_times": [float(t) for t in getattr(result, "rezone_times", [])],
         "spatial_accuracy": spatial_accuracy(result),
         "probe_oscillation": probe_oscillation(result),
+        "time_error": time_error(result),
     }
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
