@@ -81,7 +81,7 @@ def test_time_error_block_beside_the_spatial_error():
     block = output.time_error(res)
     assert block["t"] == 0.7 and block["rel_l2"] == pytest.approx(0.01) and block["max_abs_K"] == pytest.approx(0.8)
     line = output.time_error_lines(block, {"rise_error": {"t": 0.7, "rel_l2": 0.016}})
-    assert line == ["time error estimate at t = 0.7 s (sum of the controller's local errors): 1 % of the rise, "
-                    "max 0.8 K, against a spatial error of 1.6 %"]
+    assert line == ["time error at t = 0.7 s, upper estimate (the controller's local errors summed, their decay "
+                    "left out): 1 % of the rise, max 0.8 K, against a spatial error of 1.6 %"]
     res.time_error = None  # fixed steps
     assert output.time_error(res) is None and output.time_error_lines(None) == []

@@ -142,7 +142,8 @@ def time_error_lines(block: dict | None, spatial: dict | None = None) -> list[st
     the same time when the ``spatial_accuracy`` block has it."""
     if not block:
         return []
-    line = (f"time error estimate at t = {block['t']:.6g} s (sum of the controller's local errors): "
+    line = (f"time error at t = {block['t']:.6g} s, upper estimate (the controller's local errors summed, "
+            "their decay left out): "
             f"{100 * block['rel_l2']:.2g} % of the rise, max {block['max_abs_K']:.2g} K")
     err = (spatial or {}).get("rise_error")
     if err and err["t"] == block["t"]:
