@@ -1,5 +1,5 @@
 """Adaptive implicit-Euler step sizes: a local error estimate from the step history and an
-elementary controller (issue 16, item 3).
+elementary controller.
 
 **Estimate (Milne's device, no extra solve).**  For ``x' = f(x)``, an implicit Euler step of
 size h from ``x_n`` gives ``x_{n+1} = x_n + h f(x_{n+1})``, so the previous step says

@@ -230,7 +230,7 @@ class Geometry(_Section):
     the grid points nearest the tool edge, from dr = (R2 - R1)/6 to /16).  The MLS influence radius is
     ``h_factor * dr``; ``c`` and ``q`` are the weight parameters of paper eq. 30.
 
-    ``"graded"`` (issue 15): rings whose spacing follows the physics, fine across the shear
+    ``"graded"``: rings whose spacing follows the physics, fine across the shear
     band at the tool edge (about ``n R1 / 2`` wide, 0.1 mm at the paper's n = 0.1324) and
     coarse in the far field: ``dr`` is the spacing at the tool edge and across the plate's
     fine zone ``band`` (m) beyond R1; outwards from it (and inwards from R1 into the tool, at
@@ -599,7 +599,7 @@ class Scene:
         _check("effects", self.effects, not ("lagrangian" in have and self.geometry.layout == "graded"),
                "'lagrangian' on geometry.layout = 'graded' is not supported yet: the graded cloud is "
                "validated on fixed points only (its rezoning and the tool edge sliding past the fine "
-               "rings are untested, issue 15); use 'tracers' instead of 'lagrangian', or layout 'polar'")
+               "rings are untested); use 'tracers' instead of 'lagrangian', or layout 'polar'")
 
     def _validate_places(self):
         g = self.geometry
