@@ -122,7 +122,7 @@ def written(tmp_path_factory):
 
 def test_every_file_written_and_no_temporaries(written):
     res, out, paths = written
-    expected = {"summary.json", "fields.npz", "probes.csv", "fields.pvd", *ALL_FIGURES}
+    expected = {"summary.json", "steps.json", "fields.npz", "probes.csv", "fields.pvd", *ALL_FIGURES}
     assert expected <= {p.name for p in out.iterdir()}
     assert len(list((out / "vtu").glob("fields_*.vtu"))) == len(res.t)
     assert all(p.exists() for p in paths)
@@ -165,7 +165,9 @@ def test_summary_json(written):
     assert s["t_saved"] == list(SAVED)
     assert s["stats"]["factorizations"] == 3 and s["stats"]["wall_time_s"] == 1.25
     assert set(s["stats"]["wall_time"]) == {"jacobian", "factorize", "series", "solve", "other"}
-    assert len(s["stats"]["amax"]) == res.stats.time_steps
+    assert "amax" not in s["stats"]  # the per-step lists are in steps.json
+    steps = json.loads((out / "steps.json").read_text())
+    assert len(steps["amax"]) == res.stats.time_steps and set(steps) == {"amax", "orders", "residual_norm", "step_sizes"}
     assert s["probes_final"]["p1"]["v"] == float(res.probes["p1"]["v"][-1])
     assert set(s["probes_final"]["p1"]) == {"x", "y", "u", "v", "T"}
 

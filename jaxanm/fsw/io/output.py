@@ -255,7 +255,8 @@ def probe_positions(result) -> dict:
 
 
 def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> Path:
-    """Write ``summary.json``: scene, solver settings, ``t_end``, ``n_points``, stats, final probes.
+    """Write ``summary.json``: scene, solver settings, ``t_end``, ``n_points``, stats (counters and
+    the wall-time split; the per-step lists are :func:`write_steps`'s), final probes.
 
     ``solver_settings`` is any dict/dataclass describing the solver; ``None`` takes
     ``result.solver``.  ``probes_final`` holds x, y, u, v, T of every registration point at
@@ -281,7 +282,7 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
         "n_points": int(np.asarray(result.material).shape[0]),
         "n_saved": int(t.shape[0]),
         "t_saved": t.tolist(),
-        "stats": to_jsonable(result.stats),
+        "stats": _headline(result.stats),
         "probes_final": final,
         "probe_positions": probe_positions(result),
         "rezone_times": [float(t) for t in getattr(result, "rezone_times", [])],
@@ -291,6 +292,26 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
     }
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    return path
+
+
+STEP_LISTS = ("amax", "orders", "residual_norm", "step_sizes")
+"""The statistics kept per time step: ``steps.json``, not ``summary.json``."""
+
+
+def _headline(stats) -> dict:
+    """The run's statistics without their per-step lists (:data:`STEP_LISTS`)."""
+    return {k: v for k, v in to_jsonable(stats).items() if k not in STEP_LISTS}
+
+
+def write_steps(result, out_dir: str | os.PathLike) -> Path:
+    """Write ``steps.json``: the statistics kept per time step (:data:`STEP_LISTS`: the ANM's a_max
+    and series order of each accepted step, the residual norm, the step sizes under a controller),
+    thousands long for a run, so that ``summary.json`` stays a page."""
+    path = Path(out_dir) / "steps.json"
+    stats = to_jsonable(result.stats)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps({k: stats.get(k, []) for k in STEP_LISTS}) + "\n", encoding="utf-8")
     return path
 
 
@@ -402,6 +423,7 @@ def write_outputs(result, out_dir: str | os.PathLike, solver_settings=None) -> l
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [
         write_summary(result, out_dir, solver_settings),
+        write_steps(result, out_dir),
         write_fields(result, out_dir),
         write_probes(result, out_dir),
     ]
