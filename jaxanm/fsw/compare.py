@@ -75,14 +75,18 @@ def write_run(run: dict, path: str | os.PathLike) -> Path:
 
 
 def cost_row(run: dict) -> dict:
-    """Solver and cost figures of one run, from its ``summary.json``."""
+    """Solver and cost figures of one run, from its ``summary.json``, and its error against the
+    continuum (``continuum_err``: the temperature rise's relative L2 error at the last saved
+    time, ``spatial_accuracy.rise_error``; None without one)."""
     s = run["summary"]
     st = s["stats"]
     solver = s["solver"]["kind"] + "".join(f" {k}={v}" for k, v in s["solver"]["options"].items()
                                            if k in ("order", "tol", "rtol", "atol"))
+    rise = (s.get("spatial_accuracy") or {}).get("rise_error") or {}
     return {"dir": run["dir"], "solver": solver, "t_end": s["t_end"], "time_steps": st["time_steps"],
             "factorizations": st["factorizations"], "newton_iterations": st["newton_iterations"],
-            "series_orders": st["series_orders"], "wall_s": st["wall_time_s"], "split_s": st["wall_time"]}
+            "series_orders": st["series_orders"], "wall_s": st["wall_time_s"], "split_s": st["wall_time"],
+            "continuum_err": rise.get("rel_l2")}
 
 
 def common_times(t, t_ref) -> tuple[np.ndarray, np.ndarray]:

@@ -27,9 +27,11 @@ __all__ = ["COST_COLUMNS", "ROW_FILE", "failed_row", "finished_row", "run_task",
 ROW_FILE = "sweep_row.json"
 """File of a task's output directory holding its row; written last."""
 COST_COLUMNS = ("kind", "solver", "t_end", "time_steps", "factorizations", "newton_iterations", "series_orders",
-                "wall_s", "wall_jacobian_s", "wall_factorize_s", "wall_series_s", "wall_solve_s", "wall_other_s")
+                "wall_s", "wall_jacobian_s", "wall_factorize_s", "wall_series_s", "wall_solve_s", "wall_other_s",
+                "continuum_err")
 """Row columns taken from the run's ``summary.json`` (``wall_s`` is the time loop's wall time, split
-into the ``jaxanm.Stats`` timers)."""
+into the ``jaxanm.Stats`` timers; ``continuum_err`` the rise error against the axisymmetric
+continuum at the last saved time, :func:`jaxanm.fsw.compare.cost_row`)."""
 
 
 def task_spec(task, out_dir, compile_cache: bool, warmup: bool = False) -> dict:
