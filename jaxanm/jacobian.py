@@ -149,7 +149,7 @@ class SparseJacobian:
         if self._chain is None:
             self._chain = _FrontierChain.make(self._residual, x, args, self._seeds.shape[0]) or False
         if self._chain:
-            compressed = np.asarray(self._chain(self._seeds, self.batch, x, args))
+            compressed = np.asarray(self._chain(self._seeds, x, args))
         else:
             compressed = np.asarray(self._fn(x, self._seeds, *args))
         data = compressed[self.colors[self._cols], self._rows]
@@ -160,8 +160,9 @@ class _FrontierChain:
     """``J S`` by the chain rule through the affine frontier (module docstring), with ``A S``
     kept while the arguments the linear map reads are the same objects."""
 
-    def __init__(self, split, used: list):
+    def __init__(self, split, used: list, batch: int | None):
         self._used = used  # per flat argument leaf: read by the linear map's tangent
+        self._batch = batch  # colours seeded at once into A S (None: all)
         self._kept_leaves, self._kept = None, None
 
         def seeded_frontier(batch, seeds, x, *args):
@@ -192,15 +193,15 @@ class _FrontierChain:
         size = sum(int(np.prod(f.shape)) for f in frontier) * n_colors * 8
         if size > JACOBIAN_MEMORY_BYTES:
             return None
-        return cls(split, _tangent_inputs(split.linear, x, args))
+        return cls(split, _tangent_inputs(split.linear, x, args),
+                   _frontier_batch(split.linear, x, args, n_colors))
 
     def forget(self) -> None:
         """Drop the kept ``A S`` (the seeds changed)."""
         self._kept_leaves, self._kept = None, None
 
-    def __call__(self, seeds, batch, x, args):
-        """``J S`` (n_colors, n) at ``x`` (``A S`` made ``batch`` colours at a time, as
-        :func:`compressed_jacobian_function`).
+    def __call__(self, seeds, x, args):
+        """``J S`` (n_colors, n) at ``x`` (``A S`` made :func:`_frontier_batch` colours at a time).
 
         ``A S`` is made anew whenever the arguments the linear map reads are new objects (a
         cloud that moves: then about the cost of the plain seeded ``jvp``), never taken from
@@ -211,9 +212,28 @@ class _FrontierChain:
         if self._kept is None or len(leaves) != len(self._kept_leaves) or any(
                 a is not b for a, b in zip(leaves, self._kept_leaves)):
             self._kept = None  # freed before the new one is made
-            self._kept = self._seeded_frontier(batch, seeds, jnp.asarray(x), *args)
+            self._kept = self._seeded_frontier(self._batch, seeds, jnp.asarray(x), *args)
             self._kept_leaves = leaves  # held, so that an identical id cannot be a new object
         return self._chain(self._kept, jnp.asarray(x), *args)
+
+
+def _frontier_batch(linear, x, args, n_colors: int) -> int | None:
+    """Colours to seed at once into ``A S`` so that their intermediates stay within
+    :data:`JACOBIAN_MEMORY_BYTES`: a power of two, at least one; None when all fit.
+
+    A column's intermediates are bounded by the sum of every value its ``jvp`` computes (its
+    jaxpr's outputs, as if all were alive at once). The linear map applies each derivative
+    operator to the gathered stencil values separately, so these are many (N, m) arrays per
+    colour, far more than the nonzeros per colour that :func:`color_batch` budgets for the
+    whole residual."""
+    xj = jnp.asarray(x)
+    column = jax.make_jaxpr(lambda s: jax.jvp(lambda y: linear(y, *args), (xj,), (s,))[1])(xj)
+    per_color = sum(int(np.prod(v.aval.shape)) * v.aval.dtype.itemsize
+                    for eqn in column.jaxpr.eqns for v in eqn.outvars)
+    fit = JACOBIAN_MEMORY_BYTES // max(1, per_color)
+    if fit >= n_colors:
+        return None
+    return 1 << max(0, int(fit).bit_length() - 1)
 
 
 def _tangent_inputs(linear, x, args) -> list:

@@ -93,3 +93,17 @@ def test_a_frontier_above_the_memory_budget_uses_the_plain_seeded_jvp(monkeypatc
         dense = _dense(residual, x, x, 0.1, params)
     assert sj._chain is False
     np.testing.assert_allclose(jac, dense, rtol=0, atol=1e-13 * np.abs(dense).max())
+
+
+def test_A_S_seeded_in_batches_when_a_columns_intermediates_exceed_the_budget(monkeypatch):
+    # the budget holds A S (the frontier for every colour) but not every colour's gathered
+    # stencil values at once: A S is made a few colours at a time, to the same matrix
+    residual, params, pattern = _stencil_problem()
+    monkeypatch.setattr(jacobian, "JACOBIAN_MEMORY_BYTES", 20_000)
+    x = np.random.default_rng(5).standard_normal(N)
+    with jaxanm.float64():
+        sj = jaxanm.SparseJacobian(residual, pattern)
+        jac = sj(x, x, 0.0, 0.1, params).toarray()
+        dense = _dense(residual, x, x, 0.1, params)
+    assert sj._chain and 1 <= sj._chain._batch < sj._seeds.shape[0]
+    np.testing.assert_allclose(jac, dense, rtol=0, atol=1e-13 * np.abs(dense).max())
