@@ -46,6 +46,11 @@ PRODUCERS = [
     ("profile_anm_step", "benchmarks/profile_anm_step.py"),
     ("lu_orderings", "benchmarks/lu_orderings.py"),
     ("sweep_couette_demo", "jaxanm sweep benchmarks/grids/couette_demo.toml"),
+    ("main_job", "benchmarks/main_job.py"),
+    ("continuum_front", "benchmarks/continuum_front.py (from a jaxanm sweep)"),
+    ("anm_vs_mnewton_fine", "benchmarks/anm_vs_mnewton_fine.py"),
+    ("start_from_rest", "benchmarks/start_from_rest.py"),
+    ("stiff_controller", "benchmarks/stiff_controller.py"),
 ]
 
 
