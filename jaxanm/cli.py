@@ -10,7 +10,7 @@
                  [--no-progress] [--no-compile-cache]
     jaxanm scenes
 
-``SCENE`` is a shipped scene name or a TOML path (default ``fsw_paper``).  ``--set`` overrides
+``SCENE`` is a shipped scene name or a TOML path (default ``fsw``, the main job).  ``--set`` overrides
 any scene field by dotted key (``--set material.K=2e16 --set effects=viscous,conduction``);
 ``--t-end``, ``--solver``, ``--order`` and ``--tol`` are shorthands for ``time.t_end``,
 ``solver.kind``, ``solver.order`` and ``solver.tol`` and are applied after the ``--set``
@@ -58,7 +58,7 @@ from jaxanm.errors import InputError, SingularMatrixError, StepFailure
 from jaxanm.fsw.scene import SOLVER_NAMES
 
 PROG = "jaxanm"
-DEFAULT_SCENE = "fsw_paper"
+DEFAULT_SCENE = "fsw"
 CHECKPOINT_NAME = "checkpoint.pkl"
 """File name of the checkpoint inside the output directory."""
 
@@ -425,15 +425,13 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 def scene_description(path, width: int = 130) -> str:
     """The first sentence of the comment block that opens the scene TOML at ``path``, on one
     line of at most ``width`` characters (cut at a word, with "..."); ``""`` without one.
-
-    Parenthesised issue references ("(issue 15)") are left out.
     """
     lines = []
     for line in Path(path).read_text(encoding="utf-8").splitlines():
         if not line.startswith("#"):
             break
         lines.append(line.lstrip("#").strip())
-    text = re.sub(r"\s*\((?:issues?|items?) [^)]*\)", "", " ".join(lines)).strip()
+    text = " ".join(lines).strip()
     match = re.match(r"(.+?[.!?])(?=\s+[A-Z(`]|\s*$)", text)  # "V . grad T" is no sentence end
     sentence = match.group(1) if match else text
     if len(sentence) > width:

@@ -232,7 +232,7 @@ def test_scenes_lists_shipped(capsys):
 
 def test_scene_description_is_the_first_sentence_of_the_opening_comment(tmp_path):
     scene = tmp_path / "s.toml"
-    scene.write_text("# A scene for tests (issue 9): V . grad T kept.  Second sentence.\n"
+    scene.write_text("# A scene for tests: V . grad T kept.  Second sentence.\n"
                      "# More.\nname = 's'\n# not the opening block\n", encoding="utf-8")
     assert cli.scene_description(scene) == "A scene for tests: V . grad T kept."
     scene.write_text("# " + "word " * 60 + "\nname = 's'\n", encoding="utf-8")
