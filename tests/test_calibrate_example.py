@@ -6,9 +6,11 @@ import json
 import math
 
 import numpy as np
+import pytest
 from test_examples import load_example
 
 
+@pytest.mark.slow  # a minute of FSW runs; the fit itself is checked in the default suite by test_calibration
 def test_calibrate_example_fits_noisy_data_within_its_predicted_uncertainty(capsys, tmp_path):
     example = load_example("calibrate")
     # the K-A valley is shallow (Gauss-Newton eigenvalues 2.7e3 against 4e8): 15 simulations

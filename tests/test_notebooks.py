@@ -51,7 +51,14 @@ def test_notebook_has_no_outputs(path):
     assert not dirty, f"{path.name}: code cells {dirty} carry outputs or execution counts; clear them before committing"
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+SLOW_NOTEBOOKS = {"03_fsw_scene", "04_effects", "06_calibration"}
+"""Notebooks that run whole FSW scenes or a calibration (about a minute or more each): their
+execution is a ``slow`` check; the FSW runs and the calibration they show are also tested in
+the default suite (test_fsw_examples, test_calibration)."""
+
+
+@pytest.mark.parametrize("path", [pytest.param(p, id=p.stem, marks=[pytest.mark.slow] if p.stem in SLOW_NOTEBOOKS else [])
+                                  for p in NOTEBOOKS])
 def test_notebook_executes(path):
     """Run all cells in a fresh kernel (working directory: notebooks/); any error fails the test."""
     nb = nbformat.read(path, as_version=4)
