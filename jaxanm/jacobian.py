@@ -98,8 +98,14 @@ def color_batch(nnz: int, n_colors: int, budget: int | None = None) -> int | Non
     of intermediates: a power of two (so that a Lagrangian pattern whose nonzeros drift keeps
     its compiled batch), at least one colour; None when all ``n_colors`` fit.  ``budget``:
     :data:`JACOBIAN_MEMORY_BYTES` by default."""
+    return _batch(_BYTES_PER_NONZERO_AND_COLOR * nnz, n_colors, budget)
+
+
+def _batch(per_color: int, n_colors: int, budget: int | None = None) -> int | None:
+    """The largest power of two of colours, at least one, whose ``per_color`` bytes each fit in
+    ``budget`` (:data:`JACOBIAN_MEMORY_BYTES` by default); None when all ``n_colors`` fit."""
     budget = JACOBIAN_MEMORY_BYTES if budget is None else budget
-    fit = budget // max(1, _BYTES_PER_NONZERO_AND_COLOR * nnz)
+    fit = budget // max(1, per_color)
     if fit >= n_colors:
         return None
     return 1 << max(0, int(fit).bit_length() - 1)
@@ -230,10 +236,7 @@ def _frontier_batch(linear, x, args, n_colors: int) -> int | None:
     column = jax.make_jaxpr(lambda s: jax.jvp(lambda y: linear(y, *args), (xj,), (s,))[1])(xj)
     per_color = sum(int(np.prod(v.aval.shape)) * v.aval.dtype.itemsize
                     for eqn in column.jaxpr.eqns for v in eqn.outvars)
-    fit = JACOBIAN_MEMORY_BYTES // max(1, per_color)
-    if fit >= n_colors:
-        return None
-    return 1 << max(0, int(fit).bit_length() - 1)
+    return _batch(per_color, n_colors)
 
 
 def _tangent_inputs(linear, x, args) -> list:
