@@ -274,20 +274,11 @@ def _resume_plan(args: argparse.Namespace):
     return stored, out_dir, every
 
 
-def _write_outputs(result, out_dir, solver_settings):
-    """:func:`jaxanm.fsw.io.output.write_outputs` (imported on first use: matplotlib, meshio)."""
-    from jaxanm.fsw.io.output import write_outputs
+def _write_run(result, out_dir, scene) -> list[Path]:
+    """:func:`jaxanm.fsw.io.output.write_run` (imported on first use: matplotlib, meshio)."""
+    from jaxanm.fsw.io.output import write_run
 
-    return write_outputs(result, out_dir, solver_settings)
-
-
-def write_results(result, out_dir, scene) -> list[Path]:
-    """Write every file of ``jaxanm run --out out_dir`` for ``result``, a run of ``scene``; return the paths.
-
-    ``summary.json`` records the solver as the scene's ``solver.kind`` with the options the
-    run used (``result.solver``).  Shared by ``jaxanm run`` and the tasks of ``jaxanm sweep``.
-    """
-    return _write_outputs(result, out_dir, {"kind": scene.solver.kind, "options": result.solver})
+    return write_run(result, out_dir, scene)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -324,7 +315,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close()
     try:
-        paths = write_results(result, out_dir, scene)
+        paths = _write_run(result, out_dir, scene)
     except OSError as exc:
         return _error(f"cannot write results to {out_dir}: {exc}", 1)
     stats = result.stats
@@ -364,7 +355,7 @@ def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> st
         try:
             from jaxanm.fsw.io.output import end_time
 
-            paths = write_results(partial, out_dir, scene)
+            paths = _write_run(partial, out_dir, scene)
             parts.append(f"results up to t = {end_time(partial):.6g} s ({len(paths)} files) written to {out_dir}")
         except OSError as err:
             parts.append(f"cannot write the results so far to {out_dir}: {err}")

@@ -67,11 +67,11 @@ def no_files(monkeypatch):
     """Skip writing outputs (tested in test_output); records the call."""
     calls = {}
 
-    def write(result, out_dir, solver_settings):
-        calls.update(out_dir=out_dir, solver_settings=solver_settings)
+    def write(result, out_dir, scene):
+        calls.update(out_dir=out_dir, scene=scene)
         return []
 
-    monkeypatch.setattr(cli, "_write_outputs", write)
+    monkeypatch.setattr(cli, "_write_run", write)
     return calls
 
 
@@ -105,7 +105,7 @@ def test_shorthands_and_set_overrides_reach_the_scene(tiny, tmp_path, fake_run, 
     assert scene.name == "tiny" and scene.time.t_end == 0.002 and scene.time.dt == 5e-5
     assert scene.material.K == 2e16
     assert (scene.solver.kind, scene.solver.order, scene.solver.tol) == ("modified_newton", 9, 1e-8)
-    assert no_files["solver_settings"]["kind"] == "modified_newton"
+    assert no_files["scene"].solver.kind == "modified_newton"  # the files describe the overridden scene
 
 
 def test_set_switches_the_pade_option(tiny, tmp_path, fake_run, no_files):

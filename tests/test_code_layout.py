@@ -106,3 +106,29 @@ def test_the_core_knows_nothing_about_fsw():
             if any(n.startswith(("jaxanm.fsw", ".fsw")) for n in names):
                 offenders.append(f"{path.name}:{node.lineno}")
     assert not offenders, "the core imports jaxanm.fsw at " + ", ".join(offenders)
+
+
+def _absolute_imports(path: Path) -> set:
+    """Every module ``path`` imports, as absolute dotted names (``from . import x`` counts as
+    importing the package's ``x``, which may be a module), at the top or inside functions."""
+    package = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)[:-1]  # the containing package
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1] if node.level else []
+            module = ".".join(base + ([node.module] if node.module else []))
+            found.add(module)
+            found |= {f"{module}.{a.name}" for a in node.names}
+    return found
+
+
+def test_the_command_line_is_a_leaf():
+    """No library module imports :mod:`jaxanm.cli`: the library is used from notebooks and
+    scripts without its command-line front end, and the front end depends on the library, never
+    the other way round (``__main__`` is the front end's own entry point)."""
+    offenders = [str(path.relative_to(PACKAGE.parent)) for path in sorted(PACKAGE.rglob("*.py"))
+                 if path.name not in ("cli.py", "__main__.py") or path.parent != PACKAGE
+                 if "jaxanm.cli" in _absolute_imports(path)]
+    assert not offenders, "library modules importing jaxanm.cli: " + ", ".join(offenders)

@@ -1,6 +1,6 @@
 """One sweep task: run a scene on a worker, write its output directory, return its row.
 
-A task writes what ``jaxanm run --out DIR`` writes (:func:`jaxanm.cli.write_results`), then
+A task writes what ``jaxanm run --out DIR`` writes (:func:`jaxanm.fsw.io.output.write_run`), then
 :data:`ROW_FILE`, its row of the results table, last: a directory whose row file says ``ok``
 and whose ``summary.json`` holds the task's scene is a finished run (:func:`finished_row`), and
 a rerun of the sweep re-reads that row instead of running the task again.  A failed task's row
@@ -63,8 +63,8 @@ def run_task(spec: dict) -> dict:
     (out / ROW_FILE).unlink(missing_ok=True)  # the directory is no finished run until this task says so
     try:
         from jaxanm import compile_cache
-        from jaxanm.cli import write_results
         from jaxanm.fsw.scene import Scene
+        from jaxanm.fsw.io.output import write_outputs, write_run
         from jaxanm.fsw.simulate import run
 
         if spec["compile_cache"]:
@@ -72,7 +72,6 @@ def run_task(spec: dict) -> dict:
         scene = Scene.from_dict(spec["scene"], source=f"task {spec['id']}")
         if spec.get("ida"):
             from jaxanm.fsw.ida_scene import run_ida
-            from jaxanm.fsw.io.output import write_outputs
 
             if spec.get("warmup"):
                 run_ida(warmup_scene(scene, ida=True), **spec["ida"])
@@ -81,7 +80,7 @@ def run_task(spec: dict) -> dict:
         else:
             if spec.get("warmup"):
                 run(warmup_scene(scene, ida=False))
-            write_results(run(scene), out, scene)
+            write_run(run(scene), out, scene)
         row = _row(spec, "ok", "", _costs(out))
     except Exception as exc:  # noqa: BLE001 - reported in the row; the sweep goes on
         row = failed_row(spec, exc)

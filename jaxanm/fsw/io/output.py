@@ -1,6 +1,7 @@
 """Result files of an FSW run: summary JSON, fields NPZ, probe CSV, VTU/PVD series, figures.
 
-:func:`write_outputs` writes everything a run produces into one directory::
+:func:`write_outputs` writes everything a run produces into one directory (:func:`write_run`
+for a run of a scene, naming its solver kind)::
 
     summary.json                   scene, solver settings, t_end, n_points, stats, final probes,
                                    probe_positions, rezone_times (Lagrangian re-seedings),
@@ -431,6 +432,16 @@ def write_outputs(result, out_dir: str | os.PathLike, solver_settings=None) -> l
     paths += write_figures(result, out_dir)
     log.info("wrote %d files to %s", len(paths), out_dir)
     return paths
+
+
+def write_run(result, out_dir: str | os.PathLike, scene) -> list[Path]:
+    """Write every file of ``jaxanm run --out out_dir`` for ``result``, a run of ``scene``; return the paths.
+
+    ``summary.json`` records the solver as the scene's ``solver.kind`` with the options the run
+    used (``result.solver``).  The one writer of a run's directory: ``jaxanm run`` and the tasks
+    of ``jaxanm sweep`` both call it.
+    """
+    return write_outputs(result, out_dir, {"kind": scene.solver.kind, "options": result.solver})
 
 
 def write_figures(result, out_dir: str | os.PathLike) -> list[Path]:
