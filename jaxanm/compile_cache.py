@@ -1,10 +1,9 @@
 """JAX's persistent compilation cache for the ``jaxanm`` command.
 
 Most of a short run's wall time is XLA compiling the residual, its coloured Jacobian and the
-series jets (tens of seconds for ``fsw_paper``).  JAX can keep compiled executables on disk
-and reuse them in a later process; on CPU with the locked jax (0.10.2) a second process hits
-the entries the first wrote (checked with the cache's debug log, and measured on
-``jaxanm run fsw_paper --t-end 0.01``: see the README).  Only compilations that took at least
+series jets.  JAX can keep compiled executables on disk and reuse them in a later process;
+on CPU with the locked jax a second process hits the entries the first wrote (checked with
+the cache's debug log; tests/test_compile_cache.py runs two processes).  Only compilations that took at least
 JAX's ``jax_persistent_cache_min_compile_time_secs`` (1 s by default) are stored.
 
 The ``jaxanm`` command turns the cache on by default, in a per-user directory; ``--no-compile-

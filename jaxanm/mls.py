@@ -19,9 +19,9 @@ gives ``phi_j(x) = p(x)^T A(x)^{-1} B(x)`` with ``A = sum_j w_j p(x_j) p(x_j)^T`
 weight) come in closed form from differentiating ``A gamma = p`` (see
 :func:`_shape_functions`), solved through one QR factorisation of ``sqrt(W) P`` with
 equilibrated columns instead of through ``A``: the derivatives lose about
-``log10(1 / rcond) / 2`` digits instead of ``log10(1 / rcond)`` (measured: at most 2.3 digits,
-against 6.1 for the forward-mode autodiff of an elimination on ``A`` that this replaces, on
-jittered clouds with rcond down to 1e-6).  The kernel is jitted ``jax.numpy`` (its results are
+``log10(1 / rcond) / 2`` digits instead of the ``log10(1 / rcond)`` of an elimination on ``A``
+(tests/test_mls.py checks them against a 50-digit reference; the comparison with the
+elimination this replaced is in ``benchmarks/results/profile_host_step.md``).  The kernel is jitted ``jax.numpy`` (its results are
 not differentiated with respect to the points: nothing in jaxanm does).
 
 Neighbours come from ``scipy.spatial.cKDTree``, or for a moving cloud from the candidate
@@ -77,21 +77,18 @@ multiple of :data:`INNER`."""
 CALL_MAX = 1024
 """Most evaluation points per call of the compiled kernel (larger builds make several calls).
 
-A call has a fixed cost (its dispatch, and a start for each of its ~200 XLA fusions): one call
-over all of fsw_paper's 881 points (padded to 896) instead of 7 calls of 128 took 2.3 against
-3.3 ms (interleaved, on a busy 2-core AMD EPYC, before the :data:`INNER` blocks; the
-value-only kernel 1.1 against 1.5 ms).  The compiled shapes are the multiples of
-:data:`CHUNK` up to this: at most 8 per (m, q) and kernel, each compiled once."""
+A call has a fixed cost (its dispatch, and a start for each of its ~200 XLA fusions), so one
+call over a whole paper-sized cloud beats several small ones (measured in
+``benchmarks/results/profile_host_step.md``).  The compiled shapes are the multiples of :data:`CHUNK` up to
+this: at most 8 per (m, q) and kernel, each compiled once."""
 
 INNER = 64
 """Evaluation points per iteration of the loop (``lax.map``) inside each kernel call.
 
 The kernel's ~200 fusions then each work on (64, m) arrays that stay in the L1/L2 caches
-instead of streaming (896, m) arrays: on fsw_paper (896 points, m = 32), interleaved, process
-CPU time on a busy machine: 1.73 ms against 2.10 for one pass over all points (32: 1.78, 128: 2.05),
-the value-only kernel 0.70 against 0.80 ms; results change by round-off (2e-15 of sum |w|).
-The loop costs compile time: 4.1 s against 3.2 s for the derivative kernel, 3.4 against 1.7
-s for the value-only one (once per shape; ``jaxanm run`` keeps them in its compile cache)."""
+instead of streaming whole-cloud (n, m) arrays, which is faster than one pass and than blocks
+of 32 or 128 (measured in ``benchmarks/results/profile_host_step.md``); results change by round-off only.
+The loop costs compile time, once per shape (``jaxanm run`` keeps it in its compile cache)."""
 
 RCOND_MIN = 1e-10
 """Smallest accepted reciprocal condition number of the equilibrated moment matrix.
@@ -250,7 +247,7 @@ def _shape_functions(x, y, mask, c, q, derivatives=True):
     """
     # optimization_barrier: arrays used by many later sums are computed once; without it XLA
     # fuses their producers (exp, the products with R^{-1}) into every consumer and recomputes
-    # them there (measured: twice the kernel's time)
+    # them there, which doubles the kernel's time
     w, (gx, gy), (gxx, gxy, gyy) = _weight(x, y, mask, c, q)
     v = jnp.sqrt(w)
     v, gx, gy, gxx, gxy, gyy = jax.lax.optimization_barrier((v, gx, gy, gxx, gxy, gyy))
@@ -324,8 +321,7 @@ def _value_kernel(x, y, mask, h, c, q):
 def _joined(parts, n):
     """The first n rows of the concatenation of each array's ``parts`` (a tuple per call), on
     the device: the weights stay jax arrays, for the Stencils, without a copy through numpy
-    (about 0.2 ms less for fsw_paper's six (881, 32) arrays).  Compiled per (n, calls): a
-    concatenation and a slice, milliseconds."""
+    (a copy per rebuild saved).  Compiled per (n, calls): a concatenation and a slice."""
     return tuple(jnp.concatenate(p)[:n] if len(p) > 1 else p[0][:n] for p in zip(*parts))
 
 
@@ -431,10 +427,9 @@ def _condition_screen(bound, x, y, mask, c, q):
     matrices (:func:`_equilibrated_moments` of the kernel's inputs ``x, y, mask, c, q``).
     Which rows pass the check does not depend on the bound.
 
-    The bound was ``det / trace^k`` before, 3e3 to 8e3 times weaker for an
-    equilibrated 6 x 6 matrix (trace 6, Frobenius norm between sqrt 6 and 6): it left 148 of
-    fsw_paper's 881 rows (the one-sided supports at the disc's edges, rcond ~ 1e-5) to the
-    moments and eigenvalues in numpy, 0.7 ms a rebuild (idle); this one leaves none.
+    It is much tighter than ``det / trace^k`` (3e3 to 8e3 times for an equilibrated 6 x 6
+    matrix: trace 6, Frobenius norm between sqrt 6 and 6), so that the one-sided supports at
+    the disc's edges (rcond ~ 1e-5) pass without the eigenvalue check in numpy.
     """
     bound = np.array(bound)
     # 1e3 x RCOND_MIN: a margin far above the determinant's round-off
@@ -525,7 +520,7 @@ class NeighbourList:
         d = np.sqrt(dx * dx + dy * dy)
         # A node at the radius to round-off (the polar cloud has them: the tool's third ring
         # is 3 dr = h from its centre) is in or out by round-off, and cKDTree's pruning of
-        # its boxes (rounded box distances, measured: 11 ulps of h) decides it its own way:
+        # its boxes (rounded box distances, off by ulps of h) decides it its own way:
         # let cKDTree decide those rows, so that the stencils are the ones it gives (the
         # weight there, exp(-1/c^2), is not negligible).
         band = 1e-12 * (hmax + np.abs(points).max() + np.abs(centers).max())
