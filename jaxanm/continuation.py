@@ -84,32 +84,6 @@ class Branch:
 
     lam: np.ndarray
     u: np.ndarray
-    s: np.ndarray
-
-
-@dataclasses.dataclass(frozen=True)
-class Branch:
-    """A branch of solutions of ``R(u, lam) = 0`` from :func:`continuation` or
-    :func:`newton_continuation`.
-
-    ``lam (S,)``, ``u (S, n)``: the points at the step ends, the start first.  ``a (S-1,)``: the
-    length of each step in the scaled pseudo-arclength (``<U_(i+1) - U_i, t_i>``); ``amax
-    (S-1,)``: the ANM's validity range of each step (``a`` is shorter where the branch stopped at
-    ``lam_end``/``stop_at`` or the end point check halved it; None for Newton).
-    ``residual_norm (S,)``: ``|R|_inf`` at the points.  ``correction (S-1,)``: scaled norm of the
-    end point correction of each step (ANM: its distance from the branch before correcting;
-    Newton: the last Newton correction).  ``tangent (S, n+1)``: unit tangent (scaled norm) at
-    the points, oriented along the branch.  ``series (S-1, q, n+1)``: ``U(a) = U_i + sum_k a^k
-    series[i, k-1]`` on step i, ``a`` in ``[0, a[i]]``: the ANM's own series (q = order; the
-    ANM's next point is the corrected end of it), Newton's chord-length cubic Hermite
-    interpolant of the points and tangents (q = 3); None with ``keep_series=False``.  ``scale (n+1,)``: the scale
-    of the unknowns.  ``stats``: factorisations, series orders, solves, Newton iterations,
-    ``amax``, ``orders``, ``step_sizes``, the wall-time split.  ``method``: ``"anm"`` or
-    ``"newton"``; ``stopped``: ``"lam_end"``, ``"stop_at"`` or ``"max_steps"``.
-    """
-
-    lam: np.ndarray
-    u: np.ndarray
     a: np.ndarray
     amax: np.ndarray | None
     residual_norm: np.ndarray
@@ -360,9 +334,6 @@ def _follow_anm(system: ExtendedSystem, lin: Linearisation, opts: _Options):
     stats = system.stats
     walk = _Walk([lin.point], [], [float(np.max(np.abs(lin.residual)))])
     for step in range(1, opts.max_steps + 1):
-        if step > 1:
-            lin = system.linearise(walk.points[-1], system.tangent_row(t_next), step=step)
-            walk.residual_norms[-1] = float(np.max(np.abs(lin.residual)))
         coeffs = _series(system, lin, opts.order, step)
         a, end, amax = _step_length(system, lin, coeffs, opts, step)
         U_next, t_next, a, end, distance = _step_end(system, lin, coeffs, a, end, opts, step, amax)
@@ -376,6 +347,9 @@ def _follow_anm(system: ExtendedSystem, lin: Linearisation, opts: _Options):
             walk.series.append(coeffs)
         if end is not None:
             break
+        if step < opts.max_steps:  # the next step starts from this one's corrected end
+            lin = system.linearise(U_next, system.tangent_row(t_next), step=step + 1)
+            walk.residual_norms[-1] = float(np.max(np.abs(lin.residual)))
     walk.residual_norms[-1] = float(np.max(np.abs(system.residual(walk.points[-1]))))
     walk.tangents.append(t_next)
     return walk, _stopped(system, end)
