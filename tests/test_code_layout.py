@@ -36,10 +36,10 @@ FSW_IMPORTS = {
     # results: files and figures of an FSWResult
     "io": set(),
     "io.figures": {"scene", "record"},
-    "io.output": {"scene", "geometry", "record", "axisymmetric", "history", "io", "io.figures"},
+    "io.output": {"scene", "geometry", "record", "axisymmetric", "oscillation", "io", "io.figures"},
     # analyses of a scene or of results, beside the flow
     "axisymmetric": {"scene"},
-    "history": set(),
+    "oscillation": set(),
     "compare": set(),
     "energy": {"scene", "geometry", "physics", "discretisation"},
     "calibration": {"scene", "geometry", "physics", "discretisation", "record"},

@@ -165,7 +165,7 @@ few residuals to measure below that (a scene stepping 0.05 s has 3 in 0.05-0.15 
 def probe_oscillation(result, degree: int = 2) -> dict | None:
     """How much the registration points' histories oscillate (``summary.json``'s
     ``probe_oscillation``): per probe and per window of :data:`OSCILLATION_WINDOWS` that the
-    run covers, the amplitude about a trend of ``degree`` (:func:`jaxanm.fsw.history.oscillation`)
+    run covers, the amplitude about a trend of ``degree`` (:func:`jaxanm.fsw.oscillation.oscillation`)
     of the speed relative to its mean over the window, and of T relative to the mean rise
     there (T less its value at the first record, the initial temperature).
 
@@ -173,7 +173,7 @@ def probe_oscillation(result, degree: int = 2) -> dict | None:
     "max_speed", "max_T"}`` (the maxima over probes per window), or None when no window is
     covered with :data:`OSCILLATION_SAMPLES` samples or the result has no probe histories.
     """
-    from jaxanm.fsw.history import oscillation
+    from jaxanm.fsw.oscillation import oscillation
 
     names = probe_names(result)
     t = np.asarray(result.probes.get("t", ()), dtype=np.float64) if names else np.zeros(0)

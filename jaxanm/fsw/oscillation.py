@@ -1,4 +1,4 @@
-"""Oscillations of a probe history about its smooth trend.
+"""Oscillations of a probe's time series about its smooth trend.
 
 The registration-point histories of the paper's Figs 2 and 3 are meant to be smooth: the
 flow near the tool is quasi-steady and the temperature rises slowly.  On a Lagrangian cloud

@@ -1,4 +1,4 @@
-"""The oscillation of a history about its trend (:mod:`jaxanm.fsw.history`), on synthetic
+"""The oscillation of a history about its trend (:mod:`jaxanm.fsw.oscillation`), on synthetic
 signals whose amplitude and frequency are known in closed form."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxanm.fsw.history import oscillation
+from jaxanm.fsw.oscillation import oscillation
 
 DT = 1e-4  # the FSW scenes' time step: probes.csv has one row per step
 T = np.arange(0, 3001) * DT  # 0 ... 0.3 s
