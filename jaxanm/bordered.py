@@ -33,6 +33,7 @@ import scipy.sparse
 from .errors import InputError, SingularMatrixError, StepFailure, _number
 from .integrate import jacobian_kind, on_device, params_float64
 from .jacobian import detect_sparsity
+from .linalg import Factorization
 from .linalg import factorize as counted_factorize
 from .series import AffinePath
 from .solvers import Problem, _affine_functions, _residual_function, _series_function
@@ -199,7 +200,7 @@ class ExtendedSystem:
         self.params = on_device(params_float64(params))
         self._residual = residual
         self._factorize = counted_factorize if factorize is None else factorize
-        self._fact = None
+        self._fact: Factorization | None = None
         kind = jacobian_kind(jacobian, sparsity, n)
         if kind == "sparse" and sparsity is None:
             sparsity = self._detected_pattern(U0)
@@ -291,13 +292,13 @@ class PathSeries:
 
     def __init__(self, system: ExtendedSystem, point, max_terms: int):
         self._system, self._point = system, point
-        self._terms = []
+        self._terms: list[np.ndarray] = []
         joint = joint_function(system._residual)
         args = (system.params,)
         with system.stats.timer("series"):
             fns = _affine_functions(joint, point, args)
             self._path = None if fns is None else AffinePath(fns, point, args, lookahead=True, max_terms=max_terms)
-        self._whole = _series_function(joint) if fns is None else None
+        self._whole = _series_function(joint)  # used without a split; compiled on first use only
 
     def next(self, U_k, linearisation: Linearisation) -> np.ndarray:
         """``F_(k+1)`` from the new coefficient ``U_k`` (counted in ``stats.series_orders``)."""

@@ -103,38 +103,40 @@ class Branch:
     def _points(self) -> np.ndarray:
         return np.column_stack([self.u, self.lam])
 
-    def _needs_series(self):
+    def _kept_series(self) -> np.ndarray:
+        """:attr:`series`, or an error saying how to keep it."""
         if self.series is None:
             raise InputError("this branch kept no series (keep_series=False): run it with keep_series=True")
+        return self.series
 
     def evaluate(self, s) -> tuple[np.ndarray, np.ndarray]:
         """``(lam (m,), u (m, n))`` on the branch at arclengths ``s`` (m,) in ``[0, s[-1]]``,
         from each step's series."""
-        self._needs_series()
+        series = self._kept_series()
         s = np.atleast_1d(np.asarray(s, dtype=np.float64))
         starts = self.s
         steps = np.clip(np.searchsorted(starts, s, side="right") - 1, 0, self.a.size - 1)
         local = s - starts[steps]
         values = self._points()[steps].copy()
         power = np.ones_like(local)
-        for k in range(self.series.shape[1]):
+        for k in range(series.shape[1]):
             power = power * local
-            values += power[:, None] * self.series[steps, k]
+            values += power[:, None] * series[steps, k]
         return values[:, -1], values[:, :-1]
 
     def crossings(self, value: float, index: int | None = None) -> BranchPoints:
         """The points where ``lam`` (``index`` None) or ``u[index]`` equals ``value``, found as
         real roots of each step's series (every crossing, in branch order)."""
-        self._needs_series()
+        series = self._kept_series()
         j = self.u.shape[1] if index is None else int(index)
         points = self._points()
-        return self._roots(lambda i: np.concatenate([[points[i, j] - value], self.series[i, :, j]]))
+        return self._roots(lambda i: np.concatenate([[points[i, j] - value], series[i, :, j]]))
 
     def limit_points(self) -> BranchPoints:
         """The limit points (folds) in ``lam``: where ``d lam / d a`` of a step's series vanishes."""
-        self._needs_series()
-        orders = np.arange(1, self.series.shape[1] + 1)
-        return self._roots(lambda i: orders * self.series[i, :, -1])
+        series = self._kept_series()
+        orders = np.arange(1, series.shape[1] + 1)
+        return self._roots(lambda i: orders * series[i, :, -1])
 
     def _roots(self, polynomial: Callable) -> BranchPoints:
         """Points at the real roots of ``polynomial(i)`` (ascending coefficients in a) on each

@@ -470,10 +470,10 @@ class NeighbourList:
 
     def __init__(self, skin: float):
         self.skin = float(skin)
-        self.reference = None   # (N, 2) node positions when the list was made
-        self.targets = None     # (T, 2) target positions then (None: the nodes themselves)
-        self.reach = None       # (T,) the radius each target's candidates cover
-        self.candidates = None  # (T, K) node indices, N where absent
+        self.reference: np.ndarray | None = None   # (N, 2) node positions when the list was made
+        self.targets: np.ndarray | None = None     # (T, 2) target positions then (None: the nodes themselves)
+        self.reach: np.ndarray | None = None       # (T,) the radius each target's candidates cover
+        self.candidates: np.ndarray | None = None  # (T, K) node indices, N where absent
         self.rebuilds = 0
         self.width = 0          # the widest stencil it has given (m=None): widths only grow
 
@@ -482,16 +482,18 @@ class NeighbourList:
         return float(np.sqrt(np.max(np.sum((now - then) ** 2, axis=1))))
 
     def _stale(self, points, targets, h) -> bool:
-        if (self.reference is None or self.reference.shape != points.shape or self.reach.shape != h.shape
-                or (targets is None) != (self.targets is None)
-                or (targets is not None and targets.shape != self.targets.shape)):
+        reference, reach, then = self.reference, self.reach, self.targets
+        if (reference is None or reach is None or reference.shape != points.shape or reach.shape != h.shape
+                or (targets is None) != (then is None)):
             return True
-        moved = self._moved(points, self.reference)
-        if targets is None:
+        moved = self._moved(points, reference)
+        if targets is None or then is None:
             moved = 2.0 * moved
+        elif targets.shape != then.shape:
+            return True
         else:
-            moved = moved + np.sqrt(np.sum((targets - self.targets) ** 2, axis=1))
-        return not np.all(h + moved <= self.reach)
+            moved = moved + np.sqrt(np.sum((targets - then) ** 2, axis=1))
+        return not np.all(h + moved <= reach)
 
     def query(self, points: np.ndarray, h: np.ndarray, m: int | None, targets: np.ndarray | None = None):
         """``(dist, idx, m)``: the ``m`` nearest nodes closer than ``nextafter(h.max())`` to each
@@ -514,6 +516,7 @@ class NeighbourList:
             self.targets = None if targets is None else targets.copy()
             self.rebuilds += 1
         n, cand = points.shape[0], self.candidates
+        assert cand is not None  # made by the first query, which is always stale
         # coordinates gathered one axis at a time (a 1-D take is 4x faster than rows of 2)
         dx = np.append(points[:, 0], np.inf)[cand] - centers[:, :1]  # index n: absent candidate
         dy = np.append(points[:, 1], np.inf)[cand] - centers[:, 1:]
@@ -528,7 +531,7 @@ class NeighbourList:
         tree = cKDTree(points) if rows.size else None
         if m is None:
             counts = (d <= h[:, None]).sum(axis=1)
-            if rows.size:
+            if tree is not None:
                 counts[rows] = tree.query_ball_point(centers[rows], r=h[rows], return_length=True)
             m = max(M_MAX_MULTIPLE * max(1, math.ceil(int(counts.max()) / M_MAX_MULTIPLE)), self.width)
             self.width = m  # never narrower than before: a new width recompiles the MLS kernel
@@ -541,7 +544,7 @@ class NeighbourList:
             pad = m - dist.shape[1]
             dist = np.concatenate([dist, np.full((len(centers), pad), np.inf)], axis=1)
             idx = np.concatenate([idx, np.full((len(centers), pad), n)], axis=1)
-        if rows.size:
+        if tree is not None:
             dist[rows], idx[rows] = (a.reshape(rows.size, m) for a in
                                      tree.query(centers[rows], k=m, distance_upper_bound=hmax))
         return dist, idx, m
