@@ -28,7 +28,8 @@ reaction-diffusion ODE, and the FSW rows record the measured structure of M inst
 Usage (one command per figure/table; see benchmarks/results/accuracy_cost.md)::
 
     python benchmarks/accuracy_cost.py --small            # ~35 min on 2 cores under load 10-13
-    python benchmarks/accuracy_cost.py --config paper     # one accuracy point at the paper's dr (~15 min), benchmarks/results/accuracy_cost_paper_dr.*
+    python benchmarks/accuracy_cost.py --config paper     # one accuracy point at the paper's dr (~15 min),
+                                                          # benchmarks/results/accuracy_cost_paper_dr.*
     python benchmarks/accuracy_cost.py                    # full sweep (hours; see docs)
     python benchmarks/accuracy_cost.py --plot-only        # redraw benchmarks/results/accuracy_cost.png from the json
 """
@@ -59,18 +60,44 @@ CONFIGS = {
         "repeats": 3,
         "budget_s": 20.0,
         "problems": {
-            "rd": {"n": 100, "t1": 0.2, "dt": 2e-3,
-                   "orders": ORDERS, "etas": [1e-3, 1e-4, 1e-6, 1e-8, 1e-10],
-                   "deltas": [1e-3, 1e-4, 1e-6, 1e-8, 1e-10],
-                   "rtols": [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8]},
+            "rd": {
+                "n": 100,
+                "t1": 0.2,
+                "dt": 2e-3,
+                "orders": ORDERS,
+                "etas": [1e-3, 1e-4, 1e-6, 1e-8, 1e-10],
+                "deltas": [1e-3, 1e-4, 1e-6, 1e-8, 1e-10],
+                "rtols": [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8],
+            },
             # the same ODE at smaller dt: implicit Euler's time error goes down, every solver pays more steps
-            "rd@dt=5e-4": {"n": 100, "t1": 0.2, "dt": 5e-4, "orders": [7, 10], "etas": [1e-6, 1e-8],
-                           "deltas": [1e-6, 1e-8], "rtols": []},
-            "rd@dt=1.25e-4": {"n": 100, "t1": 0.2, "dt": 1.25e-4, "orders": [7], "etas": [1e-6, 1e-8],
-                              "deltas": [1e-6, 1e-8], "rtols": []},
-            "fsw_reduced": {"dr": 7.5e-4, "warm_steps": 10, "span_steps": 10, "dt": 1e-4,
-                            "orders": [3, 5, 7], "etas": [1e-4, 1e-6, 1e-8],
-                            "deltas": [1e-4, 1e-6, 1e-8], "budget_s": 90.0},
+            "rd@dt=5e-4": {
+                "n": 100,
+                "t1": 0.2,
+                "dt": 5e-4,
+                "orders": [7, 10],
+                "etas": [1e-6, 1e-8],
+                "deltas": [1e-6, 1e-8],
+                "rtols": [],
+            },
+            "rd@dt=1.25e-4": {
+                "n": 100,
+                "t1": 0.2,
+                "dt": 1.25e-4,
+                "orders": [7],
+                "etas": [1e-6, 1e-8],
+                "deltas": [1e-6, 1e-8],
+                "rtols": [],
+            },
+            "fsw_reduced": {
+                "dr": 7.5e-4,
+                "warm_steps": 10,
+                "span_steps": 10,
+                "dt": 1e-4,
+                "orders": [3, 5, 7],
+                "etas": [1e-4, 1e-6, 1e-8],
+                "deltas": [1e-4, 1e-6, 1e-8],
+                "budget_s": 90.0,
+            },
         },
     },
     # one accuracy point on the paper's resolution (fixed points): measured ratios at dr = 3.75e-4
@@ -78,20 +105,48 @@ CONFIGS = {
         "repeats": 3,
         "budget_s": 300.0,
         "problems": {
-            "fsw_paper": {"dr": 3.75e-4, "warm_steps": 10, "span_steps": 5, "dt": 1e-4,
-                          "orders": [5, 7], "etas": [1e-4, 1e-6, 1e-8], "deltas": [1e-4, 1e-6, 1e-8]},
+            "fsw_paper": {
+                "dr": 3.75e-4,
+                "warm_steps": 10,
+                "span_steps": 5,
+                "dt": 1e-4,
+                "orders": [5, 7],
+                "etas": [1e-4, 1e-6, 1e-8],
+                "deltas": [1e-4, 1e-6, 1e-8],
+            },
         },
     },
     "full": {
         "repeats": 5,
         "budget_s": 600.0,
         "problems": {
-            "rd": {"n": 200, "t1": 1.0, "dt": 1e-3, "orders": ORDERS, "etas": TOLS_FULL,
-                   "deltas": TOLS_FULL, "rtols": [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9]},
-            "fsw_reduced": {"dr": 7.5e-4, "warm_steps": 10, "span_steps": 50, "dt": 1e-4,
-                            "orders": ORDERS, "etas": TOLS_FULL, "deltas": TOLS_FULL},
-            "fsw_paper": {"dr": 3.75e-4, "warm_steps": 20, "span_steps": 20, "dt": 1e-4,
-                          "orders": [5, 7, 10], "etas": [1e-4, 1e-6, 1e-8], "deltas": [1e-4, 1e-6, 1e-8]},
+            "rd": {
+                "n": 200,
+                "t1": 1.0,
+                "dt": 1e-3,
+                "orders": ORDERS,
+                "etas": TOLS_FULL,
+                "deltas": TOLS_FULL,
+                "rtols": [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9],
+            },
+            "fsw_reduced": {
+                "dr": 7.5e-4,
+                "warm_steps": 10,
+                "span_steps": 50,
+                "dt": 1e-4,
+                "orders": ORDERS,
+                "etas": TOLS_FULL,
+                "deltas": TOLS_FULL,
+            },
+            "fsw_paper": {
+                "dr": 3.75e-4,
+                "warm_steps": 20,
+                "span_steps": 20,
+                "dt": 1e-4,
+                "orders": [5, 7, 10],
+                "etas": [1e-4, 1e-6, 1e-8],
+                "deltas": [1e-4, 1e-6, 1e-8],
+            },
         },
     },
 }
@@ -128,9 +183,19 @@ def build_problem(name: str, cfg: dict) -> dict:
         from reaction_diffusion import make_problem
 
         residual, x0, params = make_problem(cfg["n"])
-        return {"residual": residual, "x0": x0, "params": params, "t0": 0.0, "t1": cfg["t1"],
-                "dt": cfg["dt"], "scale": None, "sparsity": None, "jacobian": "sparse",
-                "values": lambda x: x, "value_scale": None}
+        return {
+            "residual": residual,
+            "x0": x0,
+            "params": params,
+            "t0": 0.0,
+            "t1": cfg["t1"],
+            "dt": cfg["dt"],
+            "scale": None,
+            "sparsity": None,
+            "jacobian": "sparse",
+            "values": lambda x: x,
+            "value_scale": None,
+        }
     from jaxanm.fsw.discretisation import discretise
     from jaxanm.fsw.scene import load_scene
     from jaxanm.mls import value_matrix
@@ -143,11 +208,21 @@ def build_problem(name: str, cfg: dict) -> dict:
     scale = model.scale()
     dt = cfg["dt"]
     t0 = cfg["warm_steps"] * dt
-    return {"residual": model.residual, "x0": None, "x_rest": x_rest,
-            "params": params, "t0": t0, "t1": t0 + cfg["span_steps"] * dt, "dt": dt, "scale": scale,
-            "sparsity": model.sparsity, "jacobian": "sparse",
-            "values": lambda x: np.concatenate([Phi @ f for f in np.asarray(x).reshape(nf, N)]),
-            "value_scale": scale, "N": N}
+    return {
+        "residual": model.residual,
+        "x0": None,
+        "x_rest": x_rest,
+        "params": params,
+        "t0": t0,
+        "t1": t0 + cfg["span_steps"] * dt,
+        "dt": dt,
+        "scale": scale,
+        "sparsity": model.sparsity,
+        "jacobian": "sparse",
+        "values": lambda x: np.concatenate([Phi @ f for f in np.asarray(x).reshape(nf, N)]),
+        "value_scale": scale,
+        "N": N,
+    }
 
 
 def relative_error(prob: dict, x, x_ref) -> float:
@@ -193,14 +268,25 @@ def run_implicit(prob: dict, solver, x0, t0=None, t1=None, dt=None, budget_s=Non
 
     def watchdog(t, x, stats):
         if budget_s is not None and time.perf_counter() - start > budget_s:
-            raise OverBudget(f"over the {budget_s:g} s budget at t = {float(t):.4g} "
-                             f"({stats.factorizations} factorizations so far)")
+            raise OverBudget(
+                f"over the {budget_s:g} s budget at t = {float(t):.4g} ({stats.factorizations} factorizations so far)"
+            )
 
-    sol = jaxanm.integrate(prob["residual"], x0, prob["params"], t0=prob["t0"] if t0 is None else t0,
-                           t1=prob["t1"] if t1 is None else t1, dt=prob["dt"] if dt is None else dt,
-                           solver=solver, scale=prob["scale"], jacobian=prob["jacobian"],
-                           sparsity=prob["sparsity"], saveat=jaxanm.SaveAt(steps=10**9), max_dt_halvings=0,
-                           callback=watchdog)
+    sol = jaxanm.integrate(
+        prob["residual"],
+        x0,
+        prob["params"],
+        t0=prob["t0"] if t0 is None else t0,
+        t1=prob["t1"] if t1 is None else t1,
+        dt=prob["dt"] if dt is None else dt,
+        solver=solver,
+        scale=prob["scale"],
+        jacobian=prob["jacobian"],
+        sparsity=prob["sparsity"],
+        saveat=jaxanm.SaveAt(steps=10**9),
+        max_dt_halvings=0,
+        callback=watchdog,
+    )
     wall = time.perf_counter() - start
     sol.stats.cpu_s = time.process_time() - cpu
     return sol.xs[-1], sol.stats, wall
@@ -248,8 +334,12 @@ def ode_form(residual, params, x, t, dt, sparsity=None):
     dev = abs(M1 - eye).max()
     zero_rows = int(np.sum(np.asarray(abs(M1).sum(axis=1)).ravel() == 0.0))
     changes = abs(M1 - M2).max() / max(abs(M1).max(), 1e-300)
-    info = {"identity_mass_deviation": float(dev), "algebraic_rows": zero_rows, "n": int(n),
-            "mass_state_dependent_rel_change": float(changes)}
+    info = {
+        "identity_mass_deviation": float(dev),
+        "algebraic_rows": zero_rows,
+        "n": int(n),
+        "mass_state_dependent_rel_change": float(changes),
+    }
     jdiag = SparseJacobian(diagonal, pattern)
     import jax
 
@@ -275,8 +365,17 @@ def run_bdf(f, jac, x0, t0, t1, rtol, atol, method="BDF"):
     wall = time.perf_counter() - start
     if not sol.success:
         raise RuntimeError(f"solve_ivp {method} failed: {sol.message}")
-    return sol.y[:, -1], {"nfev": int(sol.nfev), "njev": int(sol.njev), "nlu": int(sol.nlu),
-                          "cpu_s": time.process_time() - cpu, "steps": int(sol.t.size)}, wall
+    return (
+        sol.y[:, -1],
+        {
+            "nfev": int(sol.nfev),
+            "njev": int(sol.njev),
+            "nlu": int(sol.nlu),
+            "cpu_s": time.process_time() - cpu,
+            "steps": int(sol.t.size),
+        },
+        wall,
+    )
 
 
 # ----------------------------------------------------------------------------- worker side
@@ -303,8 +402,9 @@ def worker_refs(problem: str, cfg: dict) -> dict:
     out, info = {}, {}
     if prob["x0"] is None:  # FSW: warm state after warm_steps from rest (ANM, tight, many sub-steps)
         t = time.perf_counter()
-        xw, st, _ = run_implicit(prob, jaxanm.ANM(order=7, tol=1e-10, max_substeps=5000), prob["x_rest"],
-                                 t0=0.0, t1=prob["t0"])
+        xw, st, _ = run_implicit(
+            prob, jaxanm.ANM(order=7, tol=1e-10, max_substeps=5000), prob["x_rest"], t0=0.0, t1=prob["t0"]
+        )
         info["warm"] = {"wall_s": time.perf_counter() - t, **st.summary()}
         x0 = xw
     else:
@@ -346,24 +446,42 @@ def worker_group(problem: str, cfg: dict, method: str, order, tols: list, repeat
     rss_base = _maxrss_mb()
     rows = []
     if method == "bdf":
-        info, f, jac = ode_form(prob["residual"], prob["params"], x0, prob["t0"], prob["dt"],
-                                sparsity=prob["sparsity"])
+        info, f, jac = ode_form(prob["residual"], prob["params"], x0, prob["t0"], prob["dt"], sparsity=prob["sparsity"])
         if info["identity_mass_deviation"] > 1e-12:
-            return [{"problem": problem, "method": "bdf", "applicable": False, **info,
-                     "why": "M = -dt dR/dx_old is not the identity: a DAE / mass-matrix system; "
-                            "scipy.integrate.solve_ivp has no mass-matrix or DAE support"}]
+            return [
+                {
+                    "problem": problem,
+                    "method": "bdf",
+                    "applicable": False,
+                    **info,
+                    "why": "M = -dt dR/dx_old is not the identity: a DAE / mass-matrix system; "
+                    "scipy.integrate.solve_ivp has no mass-matrix or DAE support",
+                }
+            ]
         scale = np.maximum(np.abs(refs["ref_same"]), 1e-2 * np.max(np.abs(refs["ref_same"])))
         for rtol in tols:
             t = time.perf_counter()
             y, counts, first = run_bdf(f, jac, x0, prob["t0"], prob["t1"], rtol, rtol * scale)
             reps = [run_bdf(f, jac, x0, prob["t0"], prob["t1"], rtol, rtol * scale) for _ in range(repeats)]
             walls = [r_[2] for r_ in reps]
-            rows.append({"problem": problem, "method": "bdf", "order": None, "tol": rtol,
-                         "first_run_s": first, "wall_s": float(np.median(walls)), "walls": walls,
-                         "cpu_s": float(np.median([r_[1]["cpu_s"] for r_ in reps])),
-                         "factorizations": counts["nlu"], "jacobian_evaluations": counts["njev"],
-                         "residual_evaluations": counts["nfev"], "series_orders": 0,
-                         **_errors(prob, y, refs), "mass": info})
+            rows.append(
+                {
+                    "problem": problem,
+                    "method": "bdf",
+                    "order": None,
+                    "tol": rtol,
+                    "first_run_s": first,
+                    "wall_s": float(np.median(walls)),
+                    "walls": walls,
+                    "cpu_s": float(np.median([r_[1]["cpu_s"] for r_ in reps])),
+                    "factorizations": counts["nlu"],
+                    "jacobian_evaluations": counts["njev"],
+                    "residual_evaluations": counts["nfev"],
+                    "series_orders": 0,
+                    **_errors(prob, y, refs),
+                    "mass": info,
+                }
+            )
         rss = _maxrss_mb()
         for r in rows:
             r.update(rss_peak_mb=rss, rss_base_mb=rss_base)
@@ -380,8 +498,15 @@ def worker_group(problem: str, cfg: dict, method: str, order, tols: list, repeat
         try:
             x, st, first = run_implicit(prob, solver, x0, budget_s=budget_s)
         except Exception as exc:  # a failing configuration is a result, not a crash
-            rows.append({"problem": problem, "method": method, "order": order, "tol": tol,
-                         "failed": f"{type(exc).__name__}: {str(exc)[:200]}"})
+            rows.append(
+                {
+                    "problem": problem,
+                    "method": method,
+                    "order": order,
+                    "tol": tol,
+                    "failed": f"{type(exc).__name__}: {str(exc)[:200]}",
+                }
+            )
             continue
         walls, splits, cpus = [], [], []
         n_rep = 1 if (budget_s is not None and first > budget_s / 3) else repeats
@@ -392,15 +517,31 @@ def worker_group(problem: str, cfg: dict, method: str, order, tols: list, repeat
             splits.append(st_r.wall_time)
         n_steps = st.time_steps
         split = {k: float(np.median([s[k] for s in splits])) for k in splits[0]}
-        rows.append({"problem": problem, "method": method, "order": order, "tol": tol,
-                     "first_run_s": first, "wall_s": float(np.median(walls)), "walls": walls,
-                     "cpu_s": float(np.median(cpus)), "compile_step_s": compile_s, "wall_split": split, "time_steps": n_steps,
-                     "factorizations": st.factorizations, "jacobian_evaluations": st.jacobian_evaluations,
-                     "series_orders": st.series_orders, "residual_evaluations": st.residual_evaluations,
-                     "newton_iterations": st.newton_iterations, "substeps": st.substeps,
-                     "min_amax": float(min(st.amax)) if st.amax else None,
-                     "max_residual_norm": float(max(st.residual_norm)),
-                     "max_residual_step": int(np.argmax(st.residual_norm)) + 1, **_errors(prob, x, refs)})
+        rows.append(
+            {
+                "problem": problem,
+                "method": method,
+                "order": order,
+                "tol": tol,
+                "first_run_s": first,
+                "wall_s": float(np.median(walls)),
+                "walls": walls,
+                "cpu_s": float(np.median(cpus)),
+                "compile_step_s": compile_s,
+                "wall_split": split,
+                "time_steps": n_steps,
+                "factorizations": st.factorizations,
+                "jacobian_evaluations": st.jacobian_evaluations,
+                "series_orders": st.series_orders,
+                "residual_evaluations": st.residual_evaluations,
+                "newton_iterations": st.newton_iterations,
+                "substeps": st.substeps,
+                "min_amax": float(min(st.amax)) if st.amax else None,
+                "max_residual_norm": float(max(st.residual_norm)),
+                "max_residual_step": int(np.argmax(st.residual_norm)) + 1,
+                **_errors(prob, x, refs),
+            }
+        )
     rss = _maxrss_mb()
     for r in rows:
         r.update(rss_peak_mb=rss, rss_base_mb=rss_base)
@@ -423,9 +564,15 @@ def _spawn(payload: dict) -> dict | list:
 def sweep(config: str, problems: list, out: pathlib.Path) -> dict:
     """Run every group of the configuration; write the JSON after each group (partial results survive)."""
     conf = CONFIGS[config]
-    result = {"config": config, "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
-              "machine": {"cpus": os.cpu_count(), "uname": " ".join(os.uname())},
-              "loadavg_start": os.getloadavg(), "settings": conf, "refs": {}, "rows": []}
+    result = {
+        "config": config,
+        "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+        "machine": {"cpus": os.cpu_count(), "uname": " ".join(os.uname())},
+        "loadavg_start": os.getloadavg(),
+        "settings": conf,
+        "refs": {},
+        "rows": [],
+    }
     if out.exists():  # resume: keep rows of groups already done in this configuration
         old = json.loads(out.read_text())
         if old.get("config") == config:
@@ -444,9 +591,18 @@ def sweep(config: str, problems: list, out: pathlib.Path) -> dict:
             if (problem, method, order) in done:
                 continue
             t = time.perf_counter()
-            rows = _spawn({"job": "group", "problem": problem, "cfg": cfg, "method": method, "order": order,
-                           "tols": tols, "repeats": conf["repeats"],
-                           "budget_s": cfg.get("budget_s", conf.get("budget_s"))})
+            rows = _spawn(
+                {
+                    "job": "group",
+                    "problem": problem,
+                    "cfg": cfg,
+                    "method": method,
+                    "order": order,
+                    "tols": tols,
+                    "repeats": conf["repeats"],
+                    "budget_s": cfg.get("budget_s", conf.get("budget_s")),
+                }
+            )
             load = os.getloadavg()
             if isinstance(rows, dict):
                 rows = [{"problem": problem, "method": method, "order": order, "failed": rows["error"][-500:]}]
@@ -464,13 +620,17 @@ def sweep(config: str, problems: list, out: pathlib.Path) -> dict:
 
 def _short(r: dict) -> str:
     if "failed" in r or r.get("applicable") is False:
-        return f"  {r['problem']:12s} {r['method']:8s} p={r.get('order')} tol={r.get('tol')}: " \
-               f"{r.get('failed') or r.get('why')}"
+        return (
+            f"  {r['problem']:12s} {r['method']:8s} p={r.get('order')} tol={r.get('tol')}: "
+            f"{r.get('failed') or r.get('why')}"
+        )
     errs = " ".join(f"{k}={v:.2e}" for k, v in r.items() if k.startswith("err_"))
-    return (f"  {r['problem']:12s} {r['method']:8s} p={str(r['order']):4s} tol={r['tol']:.0e} "
-            f"wall={r['wall_s']:.3f}s cpu={r['cpu_s']:.3f}s first={r['first_run_s']:.2f}s fact={r['factorizations']} "
-            f"series={r['series_orders']} res={r['residual_evaluations']} rss={r['rss_peak_mb']:.0f}MB {errs}"
-            f" maxres={r.get('max_residual_norm', float('nan')):.1e}")
+    return (
+        f"  {r['problem']:12s} {r['method']:8s} p={str(r['order']):4s} tol={r['tol']:.0e} "
+        f"wall={r['wall_s']:.3f}s cpu={r['cpu_s']:.3f}s first={r['first_run_s']:.2f}s fact={r['factorizations']} "
+        f"series={r['series_orders']} res={r['residual_evaluations']} rss={r['rss_peak_mb']:.0f}MB {errs}"
+        f" maxres={r.get('max_residual_norm', float('nan')):.1e}"
+    )
 
 
 # ----------------------------------------------------------------------------- analysis
@@ -525,24 +685,38 @@ def plot(result: dict, path: pathlib.Path) -> None:
         prs = [r for r in rows if family(r["problem"]) == problem]
         tk = truth_key(prs)
         total = "total error (vs " + ("ODE, Radau rtol 1e-11" if tk == "err_ode" else "implicit Euler at dt/4") + ")"
-        for i, (key, title, time_key) in enumerate([("err_same", "solver error (vs tight solve, same dt)", "wall_s"),
-                                                    (tk, total, "wall_s"), (tk, total, "cpu_s")]):
+        for i, (key, title, time_key) in enumerate(
+            [
+                ("err_same", "solver error (vs tight solve, same dt)", "wall_s"),
+                (tk, total, "wall_s"),
+                (tk, total, "cpu_s"),
+            ]
+        ):
             ax = axes[i, j]
             for method in ("anm", "newton", "mnewton", "bdf"):
-                pts = [(r[time_key], max(r[key], 1e-17), r) for r in prs
-                       if r["method"] == method and key in r and time_key in r
-                       and not (method == "bdf" and key == "err_same")]
+                pts = [
+                    (r[time_key], max(r[key], 1e-17), r)
+                    for r in prs
+                    if r["method"] == method
+                    and key in r
+                    and time_key in r
+                    and not (method == "bdf" and key == "err_same")
+                ]
                 if not pts:
                     continue
                 ax.scatter([p[0] for p in pts], [p[1] for p in pts], s=12, alpha=0.35, color=COLORS[method])
                 front = pareto(pts)
-                ax.plot([p[0] for p in front], [p[1] for p in front], "-o", ms=4, color=COLORS[method],
-                        label=LABELS[method])
+                ax.plot(
+                    [p[0] for p in front], [p[1] for p in front], "-o", ms=4, color=COLORS[method], label=LABELS[method]
+                )
                 if method == "anm":
                     for w, e, r in front:
                         ax.annotate(f"p{r['order']},{r['tol']:.0e}", (w, e), fontsize=6, alpha=0.7)
-            floor = result["refs"].get(problem, {}).get("time_error_floor_ode" if tk == "err_ode"
-                                                         else "time_error_floor_fine")
+            floor = (
+                result["refs"]
+                .get(problem, {})
+                .get("time_error_floor_ode" if tk == "err_ode" else "time_error_floor_fine")
+            )
             if i >= 1 and floor:
                 ax.axhline(floor, color="k", ls=":", lw=1, label="implicit Euler time error at dt")
             ax.set_xscale("log")
@@ -551,14 +725,18 @@ def plot(result: dict, path: pathlib.Path) -> None:
             if hi / lo < 10:  # all errors at the time-error floor: show a decade around it
                 mid = np.sqrt(lo * hi)
                 ax.set_ylim(mid / 10, mid * 10)
-            ax.set_xlabel(f"median {'wall' if time_key == 'wall_s' else 'process CPU'} time per run [s] "
-                          "(compile excluded)")
+            ax.set_xlabel(
+                f"median {'wall' if time_key == 'wall_s' else 'process CPU'} time per run [s] (compile excluded)"
+            )
             ax.set_ylabel("relative max error of final state")
             ax.set_title(f"{problem}: {title}", fontsize=9)
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=7)
-    fig.suptitle(f"accuracy vs cost ({result['config']} configuration, {result['started']}, "
-                 f"load {result['loadavg_start'][0]:.1f} on {result['machine']['cpus']} cpus)", fontsize=10)
+    fig.suptitle(
+        f"accuracy vs cost ({result['config']} configuration, {result['started']}, "
+        f"load {result['loadavg_start'][0]:.1f} on {result['machine']['cpus']} cpus)",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     print(f"wrote {path}")
@@ -571,31 +749,44 @@ def tables(result: dict) -> str:
     for problem in dict.fromkeys(family(r["problem"]) for r in rows):
         prs = [r for r in rows if family(r["problem"]) == problem]
         tk = truth_key(prs)
-        lines += [f"\n### {problem}\n", f"| problem (dt) | method | p | tol | median wall [s] | first run [s] | factorizations | "
-                  f"series evals | residual evals | err vs same-dt ref | {tk.replace('err_', 'err vs ')} ref | max scaled residual | "
-                  f"median CPU [s] | peak RSS [MB] |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines += [
+            f"\n### {problem}\n",
+            f"| problem (dt) | method | p | tol | median wall [s] | first run [s] | factorizations | "
+            f"series evals | residual evals | err vs same-dt ref | {tk.replace('err_', 'err vs ')} ref | "
+            f"max scaled residual | "
+            f"median CPU [s] | peak RSS [MB] |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        ]
         for r in prs:
             if "wall_s" not in r:
-                lines.append(f"| {r['problem']} | {r['method']} | {r.get('order') or ''} | {r.get('tol', '')} | "
-                             f"{r.get('failed') or r.get('why')} |")
+                lines.append(
+                    f"| {r['problem']} | {r['method']} | {r.get('order') or ''} | {r.get('tol', '')} | "
+                    f"{r.get('failed') or r.get('why')} |"
+                )
                 continue
             same = "n/a" if r["method"] == "bdf" else f"{r.get('err_same', float('nan')):.1e}"
-            lines.append(f"| {r['problem']} | {LABELS[r['method']]} | {r.get('order') or ''} | {r['tol']:.0e} | {r['wall_s']:.3f} | "
-                         f"{r['first_run_s']:.2f} | {r['factorizations']} | {r['series_orders']} | "
-                         f"{r['residual_evaluations']} | {same} | "
-                         f"{r.get(tk, float('nan')):.1e} | {r.get('max_residual_norm', float('nan')):.1e} | "
-                         f"{r.get('cpu_s', float('nan')):.3f} | {r['rss_peak_mb']:.0f} |")
+            lines.append(
+                f"| {r['problem']} | {LABELS[r['method']]} | {r.get('order') or ''} | {r['tol']:.0e} | "
+                f"{r['wall_s']:.3f} | "
+                f"{r['first_run_s']:.2f} | {r['factorizations']} | {r['series_orders']} | "
+                f"{r['residual_evaluations']} | {same} | "
+                f"{r.get(tk, float('nan')):.1e} | {r.get('max_residual_norm', float('nan')):.1e} | "
+                f"{r.get('cpu_s', float('nan')):.3f} | {r['rss_peak_mb']:.0f} |"
+            )
         for key, time_key in (("err_same", "wall_s"), (tk, "wall_s"), ("err_same", "cpu_s"), (tk, "cpu_s")):
-            lines += [f"\nCheapest run reaching each accuracy ({key}, by median {time_key}); ratio = ANM / other:\n",
-                      "| error <= | ANM [s] (p, tol) | Newton | modified Newton | BDF | ANM/Newton | ANM/mNewton | ANM/BDF |",
-                      "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+            lines += [
+                f"\nCheapest run reaching each accuracy ({key}, by median {time_key}); ratio = ANM / other:\n",
+                "| error <= | ANM [s] (p, tol) | Newton | modified Newton | BDF | ANM/Newton | ANM/mNewton | ANM/BDF |",
+                "| --- | --- | --- | --- | --- | --- | --- | --- |",
+            ]
             for m in matched_ratios(prs, key, time_key=time_key):
                 a = m["anm"][0]
                 cell = lambda k: f"{m[k][0]:.3f}" if k in m else "—"  # noqa: E731
                 ratio = lambda k: f"{a / m[k][0]:.2f}" if k in m else "—"  # noqa: E731
-                lines.append(f"| {m['level']:.0e} | {a:.3f} (p={m['anm'][1]}, {m['anm'][2]:.0e}) | {cell('newton')} | "
-                             f"{cell('mnewton')} | {cell('bdf')} | {ratio('newton')} | {ratio('mnewton')} | {ratio('bdf')} |")
+                lines.append(
+                    f"| {m['level']:.0e} | {a:.3f} (p={m['anm'][1]}, {m['anm'][2]:.0e}) | {cell('newton')} | "
+                    f"{cell('mnewton')} | {cell('bdf')} | {ratio('newton')} | {ratio('mnewton')} | {ratio('bdf')} |"
+                )
     return "\n".join(lines)
 
 
@@ -603,11 +794,19 @@ def main(argv=None) -> None:
     """Command line: run the sweep (small or full), or redraw the plot / tables from the JSON."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--small", action="store_true", help="small configuration (minutes)")
-    ap.add_argument("--config", choices=list(CONFIGS), default=None,
-                    help="configuration by name (--small is --config small; default full)")
+    ap.add_argument(
+        "--config",
+        choices=list(CONFIGS),
+        default=None,
+        help="configuration by name (--small is --config small; default full)",
+    )
     ap.add_argument("--problems", default=None, help="comma-separated subset of the configuration's problems")
-    ap.add_argument("--out", default=None, help="JSON output (default benchmarks/results/accuracy_cost.json, "
-                                                "benchmarks/results/accuracy_cost_full.json for the full configuration)")
+    ap.add_argument(
+        "--out",
+        default=None,
+        help="JSON output (default benchmarks/results/accuracy_cost.json, "
+        "benchmarks/results/accuracy_cost_full.json for the full configuration)",
+    )
     ap.add_argument("--plot-only", action="store_true", help="redraw the PNG and print the tables from the JSON")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -616,8 +815,15 @@ def main(argv=None) -> None:
         if job["job"] == "refs":
             res = worker_refs(job["problem"], job["cfg"])
         else:
-            res = worker_group(job["problem"], job["cfg"], job["method"], job["order"], job["tols"], job["repeats"],
-                               job.get("budget_s"))
+            res = worker_group(
+                job["problem"],
+                job["cfg"],
+                job["method"],
+                job["order"],
+                job["tols"],
+                job["repeats"],
+                job.get("budget_s"),
+            )
         print(json.dumps(res, default=float))
         return
     config = args.config or ("small" if args.small else "full")

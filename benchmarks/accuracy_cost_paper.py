@@ -1,4 +1,5 @@
-"""The accuracy-cost tables quoted by benchmarks/results/accuracy_cost_paper.md, from one `jaxanm sweep` of a committed grid.
+"""The accuracy-cost tables quoted by benchmarks/results/accuracy_cost_paper.md, from one `jaxanm sweep`
+of a committed grid.
 
 Nothing is computed here: every number comes from the sweep directory of
 ``benchmarks/grids/accuracy_cost_tracers.toml`` (or ``accuracy_cost_lagrangian.toml``), which
@@ -6,7 +7,8 @@ runs every configuration, the Richardson reference and its estimated error, and 
 task against it at the common save times (:mod:`jaxanm.sweep`; read the grid's header)::
 
     jaxanm sweep benchmarks/grids/accuracy_cost_tracers.toml --workers 1 --out results/sweep-accuracy_cost_tracers
-    python benchmarks/accuracy_cost_paper.py results/sweep-accuracy_cost_tracers --out benchmarks/results/accuracy_cost_tracers
+    python benchmarks/accuracy_cost_paper.py results/sweep-accuracy_cost_tracers \
+        --out benchmarks/results/accuracy_cost_tracers
 
 It replaces the loop that measured the doc's first table (commit 29c1f02): that loop's IDA
 run, reference and error measures now live in :mod:`jaxanm.fsw.ida_scene`,
@@ -31,8 +33,16 @@ from jaxanm.sweep.pareto import cheapest, method
 from jaxanm.sweep.runner import PLOT_NAME, RICHARDSON_ROW
 from jaxanm.sweep.table import TABLE_NAME, read_table
 
-SETTINGS = ("time.dt", "time.atol", "solver.tol", "solver.max_rate", "solver.adaptive", "solver.order",
-            "solver.rtol", "solver.atol")
+SETTINGS = (
+    "time.dt",
+    "time.atol",
+    "solver.tol",
+    "solver.max_rate",
+    "solver.adaptive",
+    "solver.order",
+    "solver.rtol",
+    "solver.atol",
+)
 """Override columns that describe a row's settings, in the order they are shown."""
 ERRORS = ("rel_err_V", "rel_err_T", "probe_rel_err_T", "probe_err_V", "rel_err")
 """Error columns of the table, in the order they are shown."""
@@ -41,8 +51,9 @@ ERRORS = ("rel_err_V", "rel_err_T", "probe_rel_err_T", "probe_err_V", "rel_err")
 def label(row: dict) -> str:
     """A row's settings: the overrides among :data:`SETTINGS` that it has."""
     shown = [k for k in SETTINGS if k in row and not (k == "time.dt" and row.get("time.adaptive") is True)]
-    return ", ".join(f"{k.split('.', 1)[1]} " + (f"{row[k]:g}" if isinstance(row[k], float) else str(row[k]))
-                     for k in shown)
+    return ", ".join(
+        f"{k.split('.', 1)[1]} " + (f"{row[k]:g}" if isinstance(row[k], float) else str(row[k])) for k in shown
+    )
 
 
 def _e(row: dict, key: str) -> str:
@@ -55,20 +66,29 @@ def markdown(rows: list[dict], levels: list[dict], sweep_dir: str) -> str:
     """The reference's estimate, the table of every finished row, and the cheapest per level."""
     estimate = next((r for r in rows if r["task"] == RICHARDSON_ROW), None)
     runs = [r for r in rows if r["task"] != RICHARDSON_ROW]
-    lines = [f"From the sweep directory `{sweep_dir}` ({len(runs)} tasks, "
-             f"{sum(r['status'] != 'ok' for r in runs)} failed)."]
+    lines = [
+        f"From the sweep directory `{sweep_dir}` ({len(runs)} tasks, {sum(r['status'] != 'ok' for r in runs)} failed)."
+    ]
     if estimate is not None:
-        lines.append(f"Reference: {estimate['solver']} (Richardson), estimated error {_e(estimate, 'rel_err')} "
-                     f"(fields: V {_e(estimate, 'rel_err_V')}, T {_e(estimate, 'rel_err_T')}; probes: T "
-                     f"{_e(estimate, 'probe_rel_err_T')}, V {_e(estimate, 'probe_err_V')}); its three runs "
-                     f"took {estimate['wall_s']:.0f} s.")
-    lines += ["", "| method | task | settings | steps | factorisations | err V field | err T field | err T probes | "
-              "err V probes | error (max) | wall (s) |", "|" + " --- |" * 11]
+        lines.append(
+            f"Reference: {estimate['solver']} (Richardson), estimated error {_e(estimate, 'rel_err')} "
+            f"(fields: V {_e(estimate, 'rel_err_V')}, T {_e(estimate, 'rel_err_T')}; probes: T "
+            f"{_e(estimate, 'probe_rel_err_T')}, V {_e(estimate, 'probe_err_V')}); its three runs "
+            f"took {estimate['wall_s']:.0f} s."
+        )
+    lines += [
+        "",
+        "| method | task | settings | steps | factorisations | err V field | err T field | err T probes | "
+        "err V probes | error (max) | wall (s) |",
+        "|" + " --- |" * 11,
+    ]
     ok = [r for r in runs if r["status"] == "ok"]
     for r in sorted(ok, key=lambda r: (method(r), -r.get("rel_err", 0.0))):
-        lines.append(f"| {method(r)} | `{r['task']}` | {label(r)} | {r['time_steps']} | {r['factorizations']} | "
-                     + " | ".join(_e(r, k) for k in ERRORS)
-                     + f" | {r['wall_s']:.1f} |")
+        lines.append(
+            f"| {method(r)} | `{r['task']}` | {label(r)} | {r['time_steps']} | {r['factorizations']} | "
+            + " | ".join(_e(r, k) for k in ERRORS)
+            + f" | {r['wall_s']:.1f} |"
+        )
     failed = [r for r in runs if r["status"] != "ok"]
     if failed:
         lines += ["", "Failed: " + "; ".join(f"`{r['task']}`: {r.get('message', '')}" for r in failed)]
@@ -97,11 +117,24 @@ def main(argv=None) -> None:
     print(text)
     if a.out:
         out = Path(a.out)
-        out.with_suffix(".json").write_text(json.dumps({"sweep_dir": str(sweep), "rows": rows, "cheapest": [
-            {"level": lv["level"], "by_method": {m: r["task"] for m, r in lv["by_method"].items()}} for lv in levels]},
-            indent=1) + "\n", encoding="utf-8")
-        out.with_suffix(".md").write_text(f"<!-- made by benchmarks/accuracy_cost_paper.py {' '.join(sys.argv[1:])} -->"
-                                          f"\n\n{text}", encoding="utf-8")
+        out.with_suffix(".json").write_text(
+            json.dumps(
+                {
+                    "sweep_dir": str(sweep),
+                    "rows": rows,
+                    "cheapest": [
+                        {"level": lv["level"], "by_method": {m: r["task"] for m, r in lv["by_method"].items()}}
+                        for lv in levels
+                    ],
+                },
+                indent=1,
+            )
+            + "\n",
+            encoding="utf-8",
+        )
+        out.with_suffix(".md").write_text(
+            f"<!-- made by benchmarks/accuracy_cost_paper.py {' '.join(sys.argv[1:])} -->\n\n{text}", encoding="utf-8"
+        )
         if (sweep / PLOT_NAME).is_file():
             shutil.copyfile(sweep / PLOT_NAME, out.with_suffix(".png"))
         print(f"wrote {out}.json, .md" + (", .png" if (sweep / PLOT_NAME).is_file() else ""))

@@ -60,22 +60,29 @@ def main(argv=None) -> None:
                 runs[solver].append(run(CASES[case], solver))
         rows[case] = runs
         print(case, {s: round(statistics.median(r["command_s"] for r in v), 1) for s, v in runs.items()}, flush=True)
-    lines = ["| case | solver | command wall (s, median) | ANM / mnewton | run wall (s) | steps | factorisations | "
-             "series or residuals (s) | solves (s) | load |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [
+        "| case | solver | command wall (s, median) | ANM / mnewton | run wall (s) | steps | factorisations | "
+        "series or residuals (s) | solves (s) | load |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for case, runs in rows.items():
         med = {s: statistics.median(r["command_s"] for r in v) for s, v in runs.items()}
         for s, v in runs.items():
             last = v[-1]
-            lines.append(f"| {case} | {s} | {med[s]:.1f} | {med['anm'] / med['mnewton']:.2f} | "
-                         f"{statistics.median(r['run_s'] for r in v):.1f} | {last['steps']} | {last['factorizations']} | "
-                         f"{last['split_s']['series']:.1f} | {last['split_s']['solve']:.1f} | "
-                         f"{min(r['load'] for r in v):.1f}-{max(r['load'] for r in v):.1f} |")
+            lines.append(
+                f"| {case} | {s} | {med[s]:.1f} | {med['anm'] / med['mnewton']:.2f} | "
+                f"{statistics.median(r['run_s'] for r in v):.1f} | {last['steps']} | {last['factorizations']} | "
+                f"{last['split_s']['series']:.1f} | {last['split_s']['solve']:.1f} | "
+                f"{min(r['load'] for r in v):.1f}-{max(r['load'] for r in v):.1f} |"
+            )
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out:
-        Path(args.out + ".md").write_text("# The ANM against modified Newton on fine clouds\n\nMade by "
-                                          "`benchmarks/anm_vs_mnewton_fine.py`: whole commands, compile cache warm, "
-                                          f"{args.repeats} alternated repeats, 2 CPUs.\n\n" + text)
+        Path(args.out + ".md").write_text(
+            "# The ANM against modified Newton on fine clouds\n\nMade by "
+            "`benchmarks/anm_vs_mnewton_fine.py`: whole commands, compile cache warm, "
+            f"{args.repeats} alternated repeats, 2 CPUs.\n\n" + text
+        )
         Path(args.out + ".json").write_text(json.dumps(rows, indent=1))
 
 

@@ -45,8 +45,10 @@ def markdown(costs: list[dict], diffs: list[dict]) -> str:
                   "max point shift (m) | probes: max T difference (K) | probes: max velocity difference / (omega R1) |",
                   "| --- | --- | --- | --- | --- | --- |"]
         for d in diffs:
-            lines.append(f"| `{d['dir']}` | {d['max_rel_dV']:.2e} | {d['max_rel_dT']:.2e} | "
-                         f"{d['max_dpoints_m']:.1e} | {d['probe_max_dT_K']:.1e} | {d['probe_max_dV_over_omegaR1']:.1e} |")
+            lines.append(
+                f"| `{d['dir']}` | {d['max_rel_dV']:.2e} | {d['max_rel_dT']:.2e} | "
+                f"{d['max_dpoints_m']:.1e} | {d['probe_max_dT_K']:.1e} | {d['probe_max_dV_over_omegaR1']:.1e} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -62,8 +64,9 @@ def main(argv=None) -> None:
     table = markdown(costs, diffs)
     print(table)
     if args.out:
-        Path(args.out + ".json").write_text(json.dumps({"costs": costs, "differences": diffs}, indent=1) + "\n",
-                                            encoding="utf-8")
+        Path(args.out + ".json").write_text(
+            json.dumps({"costs": costs, "differences": diffs}, indent=1) + "\n", encoding="utf-8"
+        )
         Path(args.out + ".md").write_text(table, encoding="utf-8")
 
 

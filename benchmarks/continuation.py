@@ -11,7 +11,8 @@ orders and wall time on the problems of ``tests/test_continuation.py``.
 
 Methods: :func:`jaxanm.continuation` at orders 8 and 15 (the default), tol 1e-8 (eq. 26), and
 :func:`jaxanm.newton_continuation` with its defaults (tol 1e-8, ds 0.1, ds_max 1, target 4
-iterations) and with ds_max 0.25 (shorter steps: more factorisations, a closer interpolant).  Accuracy beside the cost: the Bratu fold from each branch (``limit_points``; for
+iterations) and with ds_max 0.25 (shorter steps: more factorisations, a closer interpolant).
+Accuracy beside the cost: the Bratu fold from each branch (``limit_points``; for
 Newton from its cubic Hermite interpolant) against the discrete fold solved directly (Newton
 on R = 0, R_u phi = 0, |phi| = 1), the truss's limit loads against the closed form, and the
 largest residual at the points.
@@ -76,10 +77,15 @@ def discrete_fold(n: int) -> float:
     for _ in range(30):
         e = np.exp(u)
         jac = lap + np.diag(lam * e)
-        rows = np.block([[jac, np.zeros((n, n)), e[:, None]], [np.diag(lam * e * phi), jac, (e * phi)[:, None]],
-                         [np.zeros((1, n)), 2.0 * phi[None, :], np.zeros((1, 1))]])
+        rows = np.block(
+            [
+                [jac, np.zeros((n, n)), e[:, None]],
+                [np.diag(lam * e * phi), jac, (e * phi)[:, None]],
+                [np.zeros((1, n)), 2.0 * phi[None, :], np.zeros((1, 1))],
+            ]
+        )
         step = np.linalg.solve(rows, -np.concatenate([lap @ u + lam * e, jac @ phi, [phi @ phi - 1.0]]))
-        u, phi, lam = u + step[:n], phi + step[n:2 * n], lam + step[-1]
+        u, phi, lam = u + step[:n], phi + step[n : 2 * n], lam + step[-1]
         if np.max(np.abs(step)) < 1e-14:
             break
     return float(lam)
@@ -100,8 +106,12 @@ def bratu_2d(m: int):
     return residual, (scipy.sparse.kron(line, eye) + scipy.sparse.kron(eye, line)).astype(bool)
 
 
-METHODS = [("anm p=8", dict(order=8)), ("anm p=15", dict(order=15)), ("newton", {}),
-           ("newton ds_max=0.25", dict(ds_max=0.25))]
+METHODS = [
+    ("anm p=8", dict(order=8)),
+    ("anm p=15", dict(order=15)),
+    ("newton", {}),
+    ("newton ds_max=0.25", dict(ds_max=0.25)),
+]
 
 
 def problems():
@@ -113,8 +123,9 @@ def problems():
     yield "truss", truss, np.zeros(2), kwargs, [P_STAR, -P_STAR], METHODS
     m = 50
     residual, pattern = bratu_2d(m)
-    kwargs = dict(stop_at=(m * m // 2 + m // 2, 3.0), max_steps=500, sparsity=pattern,
-                  scale=np.append(np.full(m * m, m), 1.0))
+    kwargs = dict(
+        stop_at=(m * m // 2 + m // 2, 3.0), max_steps=500, sparsity=pattern, scale=np.append(np.full(m * m, m), 1.0)
+    )
     yield f"bratu 2D {m}x{m} (sparse)", residual, np.zeros(m * m), kwargs, None, [METHODS[1], METHODS[2]]
 
 
@@ -139,16 +150,29 @@ def measure(name, residual, u0, kwargs, reference, method, options, repeats: int
     limits = branch.limit_points().lam
     st = branch.stats
     return {
-        "problem": name, "method": method, "steps": int(branch.a.size), "factorizations": st.factorizations,
-        "series_orders": st.series_orders, "solves": st.solves, "newton_iterations": st.newton_iterations,
-        "residual_evaluations": st.residual_evaluations, "rejected_steps": st.rejected_steps,
+        "problem": name,
+        "method": method,
+        "steps": int(branch.a.size),
+        "factorizations": st.factorizations,
+        "series_orders": st.series_orders,
+        "solves": st.solves,
+        "newton_iterations": st.newton_iterations,
+        "residual_evaluations": st.residual_evaluations,
+        "rejected_steps": st.rejected_steps,
         "limit_loads": [float(v) for v in limits],
-        "limit_error": (float(np.max(np.abs(limits - np.array(reference))))
-                        if reference is not None and limits.size == len(reference) else None),
+        "limit_error": (
+            float(np.max(np.abs(limits - np.array(reference))))
+            if reference is not None and limits.size == len(reference)
+            else None
+        ),
         "limit_scale": float(max(abs(r) for r in reference)) if reference is not None else None,
-        "max_residual": float(np.max(branch.residual_norm)), "end_lam": float(branch.lam[-1]),
-        "first_s": first, "wall_s": statistics.median(walls), "wall_spread_s": [min(walls), max(walls)],
-        "wall_split_s": {k: round(v, 4) for k, v in st.wall_time.items()}, "loadavg": list(load),
+        "max_residual": float(np.max(branch.residual_norm)),
+        "end_lam": float(branch.lam[-1]),
+        "first_s": first,
+        "wall_s": statistics.median(walls),
+        "wall_spread_s": [min(walls), max(walls)],
+        "wall_split_s": {k: round(v, 4) for k, v in st.wall_time.items()},
+        "loadavg": list(load),
     }
 
 
@@ -175,14 +199,19 @@ def markdown(results: dict) -> str:
     ]
     for r in results["cases"]:
         error = "n/a" if r["limit_error"] is None else f"{r['limit_error'] / r['limit_scale']:.1e}"
-        lines.append(f"| {r['problem']} | {r['method']} | {r['steps']} | {r['factorizations']} | {r['series_orders']} "
-                     f"| {r['solves']} | {r['newton_iterations']} | {r['limit_loads'][0]:.9g} | {error} "
-                     f"| {r['max_residual']:.1e} "
-                     f"| {r['first_s']:.2f} | {r['wall_s']:.3f} |")
+        lines.append(
+            f"| {r['problem']} | {r['method']} | {r['steps']} | {r['factorizations']} | {r['series_orders']} "
+            f"| {r['solves']} | {r['newton_iterations']} | {r['limit_loads'][0]:.9g} | {error} "
+            f"| {r['max_residual']:.1e} "
+            f"| {r['first_s']:.2f} | {r['wall_s']:.3f} |"
+        )
     loads = [r["loadavg"][0] for r in results["cases"]]
-    lines += ["", f"Counts are deterministic; the times move with the machine's load (1-minute load average "
-              f"{min(loads):.1f}-{max(loads):.1f} before the cases of this run; JSON: `loadavg` per case, the "
-              "spread of the repeats)."]
+    lines += [
+        "",
+        f"Counts are deterministic; the times move with the machine's load (1-minute load average "
+        f"{min(loads):.1f}-{max(loads):.1f} before the cases of this run; JSON: `loadavg` per case, the "
+        "spread of the repeats).",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -195,9 +224,12 @@ def main():
     for name, residual, u0, kwargs, reference, methods in problems():
         for method, options in methods:
             case = measure(name, residual, u0, kwargs, reference, method, options, args.repeats)
-            print(f"{name:12s} {method:18s} steps {case['steps']:4d} factorisations {case['factorizations']:4d} "
-                  f"series orders {case['series_orders']:5d} limit {case['limit_loads']} "
-                  f"first {case['first_s']:.2f} s wall {case['wall_s']:.3f} s", flush=True)
+            print(
+                f"{name:12s} {method:18s} steps {case['steps']:4d} factorisations {case['factorizations']:4d} "
+                f"series orders {case['series_orders']:5d} limit {case['limit_loads']} "
+                f"first {case['first_s']:.2f} s wall {case['wall_s']:.3f} s",
+                flush=True,
+            )
             cases.append(case)
     results = {"date": datetime.date.today().isoformat(), "cpus": os.cpu_count(), "tol": TOL, "cases": cases}
     out = pathlib.Path(args.out)

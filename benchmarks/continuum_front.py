@@ -77,17 +77,35 @@ def main(argv=None) -> None:
     main = next((r for r in rows if r["task"] == MAIN_JOB), None)
     if main:
         better = [r for r in rows if r["err"] <= main["err"] and r["wall"] < main["wall"] and r is not main]
-        lines += ["", f"The main job's configuration (fsw as shipped) reaches {100 * main['err']:.2f} % in "
-                      f"{main['wall']:.1f} s; " + (", ".join(f"{r['cloud']} with {r['steps']} ({r['kind']})" for r in better)
-                                                   + " reach at least that for less" if better else
-                                                   "nothing in the grid reaches that for less") + "."]
-    lines += ["", "Per cloud, the ANM's rise error at a fixed step and under the controller:", "",
-              "| cloud | fixed dt = 1e-4 | atol = 1e-5 | atol = 1e-4 |", "| --- | ---: | ---: | ---: |"]
+        lines += [
+            "",
+            f"The main job's configuration (fsw as shipped) reaches {100 * main['err']:.2f} % in "
+            f"{main['wall']:.1f} s; "
+            + (
+                ", ".join(f"{r['cloud']} with {r['steps']} ({r['kind']})" for r in better)
+                + " reach at least that for less"
+                if better
+                else "nothing in the grid reaches that for less"
+            )
+            + ".",
+        ]
+    lines += [
+        "",
+        "Per cloud, the ANM's rise error at a fixed step and under the controller:",
+        "",
+        "| cloud | fixed dt = 1e-4 | atol = 1e-5 | atol = 1e-4 |",
+        "| --- | ---: | ---: | ---: |",
+    ]
     for name in sorted({r["cloud"] for r in rows}):
         err = {r["steps"]: r["err"] for r in rows if r["cloud"] == name and r["kind"] == "anm"}
-        lines.append(f"| {name} | " + " | ".join(
-            f"{100 * err[k]:.2f} %" if k in err else "-"
-            for k in ("fixed dt = 0.0001", "controller, atol = 1e-05", "controller, atol = 0.0001")) + " |")
+        lines.append(
+            f"| {name} | "
+            + " | ".join(
+                f"{100 * err[k]:.2f} %" if k in err else "-"
+                for k in ("fixed dt = 0.0001", "controller, atol = 1e-05", "controller, atol = 0.0001")
+            )
+            + " |"
+        )
     lines += ["", TIME_AND_SPACE]
     text = "\n".join(lines) + "\n"
     print(text)
@@ -103,12 +121,22 @@ def main(argv=None) -> None:
             ax.scatter([r["wall"] for r in pts], [100 * r["err"] for r in pts], label=name)
         main = [r for r in rows if r["task"] == MAIN_JOB]
         if main:
-            ax.scatter([main[0]["wall"]], [100 * main[0]["err"]], s=160, facecolors="none", edgecolors="k",
-                       label="the main job's configuration")
+            ax.scatter(
+                [main[0]["wall"]],
+                [100 * main[0]["err"]],
+                s=160,
+                facecolors="none",
+                edgecolors="k",
+                label="the main job's configuration",
+            )
         for level in LEVELS:
             ax.axhline(100 * level, color="0.8", lw=0.8)
-        ax.set(xscale="log", yscale="log", xlabel="wall time of the time loop, 0.1 s of welding (s)",
-               ylabel="rise error against the continuum at 0.1 s (%)")
+        ax.set(
+            xscale="log",
+            yscale="log",
+            xlabel="wall time of the time loop, 0.1 s of welding (s)",
+            ylabel="rise error against the continuum at 0.1 s (%)",
+        )
         ax.legend(fontsize=7)
         fig.tight_layout()
         fig.savefig(args.out + ".png", dpi=120)
@@ -116,7 +144,8 @@ def main(argv=None) -> None:
             "# What accuracy costs against the physics\n\nMade by `benchmarks/continuum_front.py` from the sweep "
             "`benchmarks/grids/continuum_front.toml` (one task at a time, compilation left out); the error is "
             "the temperature rise's relative L2 error against the axisymmetric continuum at 0.1 s, space and "
-            "time together.\n\n" + text + "\n![error against wall time](continuum_front.png)\n")
+            "time together.\n\n" + text + "\n![error against wall time](continuum_front.png)\n"
+        )
         Path(args.out + ".json").write_text(json.dumps({"rows": rows, "cheapest": cheapest}, indent=1, default=str))
 
 

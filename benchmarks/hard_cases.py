@@ -42,8 +42,8 @@ import numpy as np
 
 import jaxanm
 from jaxanm.fsw.axisymmetric import radial_finite_volumes
-from jaxanm.fsw.geometry import PLATE, build_cloud, build_stencils
 from jaxanm.fsw.discretisation import discretise, make_model
+from jaxanm.fsw.geometry import PLATE, build_cloud, build_stencils
 from jaxanm.fsw.physics import mu_reference
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run as fsw_run
@@ -139,9 +139,20 @@ def _fsw_integrate(overrides, solver, *, steps=None, callback=None):
     cloud, stencils, model, params, x0 = discretise(scene)
     tm = scene.time
     t1 = tm.t_end if steps is None else steps * tm.dt
-    sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=t1, dt=tm.dt, solver=solver,
-                           scale=model.scale(), jacobian="sparse", sparsity=model.sparsity, saveat=jaxanm.SaveAt(steps=1),
-                           callback=callback)
+    sol = jaxanm.integrate(
+        model.residual,
+        x0,
+        params,
+        t0=0.0,
+        t1=t1,
+        dt=tm.dt,
+        solver=solver,
+        scale=model.scale(),
+        jacobian="sparse",
+        sparsity=model.sparsity,
+        saveat=jaxanm.SaveAt(steps=1),
+        callback=callback,
+    )
     x, x_old = sol.xs[-1], sol.xs[-2]
     dt = sol.ts[-1] - sol.ts[-2]
     if sol.stats.dt_halvings:
@@ -151,12 +162,14 @@ def _fsw_integrate(overrides, solver, *, steps=None, callback=None):
 
 def _model_integrate(problem, solver, t1, dt, **kw):
     residual, x0, params = problem
-    sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=t1, dt=dt, solver=solver, saveat=jaxanm.SaveAt(steps=1),
-                           jacobian="dense", **kw)
+    sol = jaxanm.integrate(
+        residual, x0, params, t0=0.0, t1=t1, dt=dt, solver=solver, saveat=jaxanm.SaveAt(steps=1), jacobian="dense", **kw
+    )
     ratio = None
     if not sol.stats.dt_halvings:
-        ratio = _ratio(solver, residual, sol.xs[-1], sol.xs[-2], sol.ts[-1], sol.ts[-1] - sol.ts[-2], params,
-                       np.ones_like(x0))
+        ratio = _ratio(
+            solver, residual, sol.xs[-1], sol.xs[-2], sol.ts[-1], sol.ts[-1] - sol.ts[-2], params, np.ones_like(x0)
+        )
     return sol.stats, ratio
 
 
@@ -173,20 +186,24 @@ THERMO = {"effects": "inertia,viscous,softening,conduction,tool_conduction,dissi
 def impulsive_start(solver=None):
     """Quasi-static impulsive start at the paper's n and eps0 (ANM p=7 by default)."""
     solver = solver or jaxanm.ANM(order=7, tol=1e-6)
-    return _run_case(f"impulsive tool start, quasi-static ({type(solver).__name__})",
-                     lambda: _fsw_integrate(ISO, solver))
+    return _run_case(
+        f"impulsive tool start, quasi-static ({type(solver).__name__})", lambda: _fsw_integrate(ISO, solver)
+    )
 
 
 def impulsive_start_inertia():
     """Impulsive start of the full thermo-mechanical model with inertia, one step of 1e-4 s (ANM p=7)."""
-    return _run_case("impulsive tool start, full physics, dt = 1e-4 (ANM)",
-                     lambda: _fsw_integrate(THERMO, jaxanm.ANM(order=7, tol=1e-6), steps=1))
+    return _run_case(
+        "impulsive tool start, full physics, dt = 1e-4 (ANM)",
+        lambda: _fsw_integrate(THERMO, jaxanm.ANM(order=7, tol=1e-6), steps=1),
+    )
 
 
 def power_law(n, solver):
     """Couette flow of a power-law fluid with index n (0.05: extreme shear thinning; 1: Newtonian)."""
-    return _run_case(f"n = {n} ({type(solver).__name__})",
-                     lambda: _fsw_integrate({**ISO, "material.n": repr(n)}, solver))
+    return _run_case(
+        f"n = {n} ({type(solver).__name__})", lambda: _fsw_integrate({**ISO, "material.n": repr(n)}, solver)
+    )
 
 
 EPS0_ZERO = {**ISO, "material.eps0": "1e-9"}
@@ -202,8 +219,7 @@ def epsbar_zero(solver):
     def count(t, x, stats):
         per_step.append(stats.newton_iterations - sum(per_step))
 
-    out = _run_case(f"epsbar -> 0, eps0 = 1e-9 ({label})",
-                    lambda: _fsw_integrate(EPS0_ZERO, solver, callback=count))
+    out = _run_case(f"epsbar -> 0, eps0 = 1e-9 ({label})", lambda: _fsw_integrate(EPS0_ZERO, solver, callback=count))
     out.step_iterations = per_step
     if out.converged and per_step and isinstance(solver, jaxanm.Newton):
         out.note = f"Newton iterations per step: {', '.join(map(str, per_step))}"
@@ -232,37 +248,60 @@ def penalty(ratio, solver):
     """Penalised incompressibility with lambda = ratio * mu_ref."""
     scene = load_scene("fsw_small").with_overrides({**TINY, **ISO})
     lam = ratio * mu_reference(scene)
-    return _run_case(f"penalty lambda/mu_ref = {ratio:.0e} ({type(solver).__name__})",
-                     lambda: _fsw_integrate({**ISO, "mechanics.penalty": repr(lam)}, solver))
+    return _run_case(
+        f"penalty lambda/mu_ref = {ratio:.0e} ({type(solver).__name__})",
+        lambda: _fsw_integrate({**ISO, "mechanics.penalty": repr(lam)}, solver),
+    )
 
 
 def time_step(dt, solver):
     """Two thermo-mechanical steps of size dt (inertia-dominated at 1e-7, conduction-dominated at 1e-2)."""
-    return _run_case(f"dt = {dt:g}, full physics ({type(solver).__name__})",
-                     lambda: _fsw_integrate({**THERMO, "time.dt": repr(dt), "time.t_end": repr(2 * dt)}, solver))
+    return _run_case(
+        f"dt = {dt:g}, full physics ({type(solver).__name__})",
+        lambda: _fsw_integrate({**THERMO, "time.dt": repr(dt), "time.t_end": repr(2 * dt)}, solver),
+    )
 
 
 def omega_200():
     """Tool speed 200 rad/s (ten times the paper's): two full-physics steps of 1e-4 s."""
-    return _run_case("omega = 200 rad/s, full physics (Newton)",
-                     lambda: _fsw_integrate({**THERMO, "tool.omega": "200", "time.t_end": "2e-4"},
-                                            jaxanm.Newton(tol=1e-8)))
+    return _run_case(
+        "omega = 200 rad/s, full physics (Newton)",
+        lambda: _fsw_integrate({**THERMO, "tool.omega": "200", "time.t_end": "2e-4"}, jaxanm.Newton(tol=1e-8)),
+    )
 
 
 def hot_softening():
     """Strong softening up to high temperature: T0 = Ta = 800 K and A = -8 (mu ~ T^-8), dt = 1e-3."""
-    return _run_case("thermal softening, T0 = 800 K, A = -8 (Newton)",
-                     lambda: _fsw_integrate({**THERMO, "thermal.T0": "800", "thermal.Ta": "800",
-                                             "material.A": "-8", "time.dt": "1e-3", "time.t_end": "2e-3"},
-                                            jaxanm.Newton(tol=1e-8)))
+    return _run_case(
+        "thermal softening, T0 = 800 K, A = -8 (Newton)",
+        lambda: _fsw_integrate(
+            {
+                **THERMO,
+                "thermal.T0": "800",
+                "thermal.Ta": "800",
+                "material.A": "-8",
+                "time.dt": "1e-3",
+                "time.t_end": "2e-3",
+            },
+            jaxanm.Newton(tol=1e-8),
+        ),
+    )
 
 
 def lagrangian_shear():
     """Lagrangian points sheared by the tool: dt = 1e-2 s at omega = 20 rad/s turns the tool by
     0.2 rad per step, so neighbouring rings slide past each other and points come close."""
     scene = load_scene("fsw_small").with_overrides(
-        {**TINY, "effects": "viscous,lagrangian", "time.dt": "1e-2", "time.t_end": "3e-2",
-         "time.save": "1e-2,2e-2", "solver.kind": "newton", "solver.tol": "1e-8"})
+        {
+            **TINY,
+            "effects": "viscous,lagrangian",
+            "time.dt": "1e-2",
+            "time.t_end": "3e-2",
+            "time.save": "1e-2,2e-2",
+            "solver.kind": "newton",
+            "solver.tol": "1e-8",
+        }
+    )
     from scipy.spatial import cKDTree
 
     def closest(points):
@@ -276,8 +315,10 @@ def lagrangian_shear():
         try:
             res = fsw_run(scene)
         except jaxanm.StepFailure as exc:
-            notes.append(f"closest pair {before:.2f} dr at t = 0, {closest(exc.partial.points[-1]):.2f} dr "
-                         f"at t = {exc.partial.t[-1]:g} s")
+            notes.append(
+                f"closest pair {before:.2f} dr at t = 0, {closest(exc.partial.points[-1]):.2f} dr "
+                f"at t = {exc.partial.t[-1]:g} s"
+            )
             raise
         notes.append(f"closest pair {before:.2f} dr at t = 0, {closest(res.points[-1]):.2f} dr at the end")
         assert np.all(np.isfinite(res.u)) and np.all(np.isfinite(res.points))
@@ -307,11 +348,24 @@ def near_coincident(delta, solver=None):
         model = make_model(scene, cloud)
         params = model.params(points, stencils)
         x0 = model.initial_state(points)
-        sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=1.0, dt=1.0, solver=solver,
-                               scale=model.scale(), jacobian="sparse", sparsity=model.sparsity, saveat=jaxanm.SaveAt(steps=1))
+        sol = jaxanm.integrate(
+            model.residual,
+            x0,
+            params,
+            t0=0.0,
+            t1=1.0,
+            dt=1.0,
+            solver=solver,
+            scale=model.scale(),
+            jacobian="sparse",
+            sparsity=model.sparsity,
+            saveat=jaxanm.SaveAt(steps=1),
+        )
         values = model.values(sol.xs[-1], stencils)[:, :2] / (scene.tool.omega * scene.geometry.R1)
-        notes.append(f"max |nodal parameter| = {np.abs(sol.xs[-1] / model.scale()).max():.3g} omega R1, "
-                     f"max |value at the points| = {np.abs(values).max():.3g} omega R1")
+        notes.append(
+            f"max |nodal parameter| = {np.abs(sol.xs[-1] / model.scale()).max():.3g} omega R1, "
+            f"max |value at the points| = {np.abs(values).max():.3g} omega R1"
+        )
         return sol.stats, _ratio(solver, model.residual, sol.xs[-1], sol.xs[-2], 1.0, 1.0, params, model.scale())
 
     notes = []
@@ -320,8 +374,13 @@ def near_coincident(delta, solver=None):
     return out
 
 
-COARSE_CONDUCTION = {"geometry.dr": "1.125e-3", "geometry.c": "0.2", "thermal.edge_rows": "flux",
-                     "time.save": "", "time.t_end": "2.0"}
+COARSE_CONDUCTION = {
+    "geometry.dr": "1.125e-3",
+    "geometry.c": "0.2",
+    "thermal.edge_rows": "flux",
+    "time.save": "",
+    "time.t_end": "2.0",
+}
 """conduction_small at twice its spacing, dr = (R2 - R1) / 4 (113 points), over 2 s: 40 steps
 of the scene's 0.05 s (the scene itself stops at 0.5 s), with the paper's weight c = 0.2 and
 the flux edge rows pinned (the scene's settings when the case was made)."""
@@ -334,8 +393,9 @@ cloud from dr = (R2 - R1) / 2 to / 16 (docs/notes/collocation_stability.md)."""
 def _conduction_error(scene, model, stencils, x) -> float:
     """Max |T - T_ref| / (T0 - Ta) at the points, T_ref the 1-D radial finite volumes at t_end."""
     tm, th, m, tl, g = scene.time, scene.thermal, scene.material, scene.tool, scene.geometry
-    rc, ref = radial_finite_volumes(g.R1, g.R2, tl.k, m.k, tl.rho * tl.Cp, m.rho * m.Cp, th.h, th.Ta, th.T0,
-                                    tm.dt, round(tm.t_end / tm.dt))
+    rc, ref = radial_finite_volumes(
+        g.R1, g.R2, tl.k, m.k, tl.rho * tl.Cp, m.rho * m.Cp, th.h, th.Ta, th.T0, tm.dt, round(tm.t_end / tm.dt)
+    )
     T = model.values(x, stencils)[:, model.fields.index("T")]
     return float(np.max(np.abs(T - np.interp(np.hypot(*model.cloud.points.T), rc, ref))) / (th.T0 - th.Ta))
 
@@ -356,13 +416,27 @@ def coarse_conduction(overrides=None, label="c = 0.2, flux rows"):
         _, stencils, model, params, x0 = discretise(scene)
         solver, tm = scene.solver.make(), scene.time
         guard = TemperatureGuard(model, params, x0)
-        sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver,
-                               scale=model.scale(), jacobian="dense", saveat=jaxanm.SaveAt(steps=1), callback=guard)
+        sol = jaxanm.integrate(
+            model.residual,
+            x0,
+            params,
+            t0=0.0,
+            t1=tm.t_end,
+            dt=tm.dt,
+            solver=solver,
+            scale=model.scale(),
+            jacobian="dense",
+            saveat=jaxanm.SaveAt(steps=1),
+            callback=guard,
+        )
         mode = heat_modes(model, params, x0, tm.dt, count=1, by="amplification")[0]
-        notes.append(f"max error {_conduction_error(scene, model, stencils, sol.xs[-1]):.2g} of T0 - Ta against "
-                     f"the 1-D reference; most amplified mode: {mode.describe()}")
-        return sol.stats, _ratio(solver, model.residual, sol.xs[-1], sol.xs[-2], sol.ts[-1], sol.ts[-1] - sol.ts[-2],
-                                 params, model.scale())
+        notes.append(
+            f"max error {_conduction_error(scene, model, stencils, sol.xs[-1]):.2g} of T0 - Ta against "
+            f"the 1-D reference; most amplified mode: {mode.describe()}"
+        )
+        return sol.stats, _ratio(
+            solver, model.residual, sol.xs[-1], sol.xs[-2], sol.ts[-1], sol.ts[-1] - sol.ts[-2], params, model.scale()
+        )
 
     out = _run_case(f"conduction_small at 2 dr over 2 s, {label} (Newton)", go)
     out.note = "; ".join(notes)
@@ -372,8 +446,10 @@ def coarse_conduction(overrides=None, label="c = 0.2, flux rows"):
 def forced_divergence():
     """Stiff impulsive cubic (eps u' = F - u^3 - u, eps = 1e-6, dt = 1e-2): the series from the
     initial tangent cannot reach a = 1, K* is refactorised and the step advances by continuation."""
-    return _run_case("series forced to diverge: continuation (ANM p=7)",
-                     lambda: _model_integrate(impulsive_cubic(5), jaxanm.ANM(order=7, tol=1e-8), 0.05, 1e-2))
+    return _run_case(
+        "series forced to diverge: continuation (ANM p=7)",
+        lambda: _model_integrate(impulsive_cubic(5), jaxanm.ANM(order=7, tol=1e-8), 0.05, 1e-2),
+    )
 
 
 def forced_halving(max_dt_halvings):
@@ -387,16 +463,28 @@ def forced_halving(max_dt_halvings):
     forcing = np.linspace(50.0, 200.0, 5)  # as in tests/model_problems.py
 
     def go():
-        sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=0.01, dt=1e-2, solver=solver,
-                               max_dt_halvings=max_dt_halvings, jacobian="dense")
+        sol = jaxanm.integrate(
+            residual,
+            x0,
+            params,
+            t0=0.0,
+            t1=0.01,
+            dt=1e-2,
+            solver=solver,
+            max_dt_halvings=max_dt_halvings,
+            jacobian="dense",
+        )
         u = sol.xs[-1]
-        return sol.stats, float(np.linalg.norm((u**3 + u - forcing) / (3 * u**2 + 1)) / (solver.tol * np.linalg.norm(u)))
+        return sol.stats, float(
+            np.linalg.norm((u**3 + u - forcing) / (3 * u**2 + 1)) / (solver.tol * np.linalg.norm(u))
+        )
 
     return _run_case(f"series forced to diverge: dt halving only (max_dt_halvings = {max_dt_halvings})", go)
 
 
 def cubic_relaxation():
     """u' = s - u^3 on 3 unknowns: the smallest residual (few jet primitives, fast to compile)."""
+
     def residual(u, u_old, t, dt, p):
         return (u - u_old) / dt - (p["s"] - u * u * u)
 
@@ -406,8 +494,9 @@ def cubic_relaxation():
 def order(p, problem="cubic"):
     """ANM of order p (tol 1e-12) for 5 steps of 1e-2 on the cubic relaxation or on heat_1d(8)."""
     prob = cubic_relaxation() if problem == "cubic" else heat_1d(8)
-    return _run_case(f"series order {p} ({problem})",
-                     lambda: _model_integrate(prob, jaxanm.ANM(order=p, tol=1e-12), 0.05, 1e-2))
+    return _run_case(
+        f"series order {p} ({problem})", lambda: _model_integrate(prob, jaxanm.ANM(order=p, tol=1e-12), 0.05, 1e-2)
+    )
 
 
 def order_1():
@@ -450,13 +539,17 @@ The fast ones run in the default tests; all run in this script."""
 
 def table(outcomes) -> str:
     """Markdown table of the outcomes."""
-    lines = ["| case | outcome | factorizations | sub-steps | dt halvings | steps | check | wall s | error message / note |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "| case | outcome | factorizations | sub-steps | dt halvings | steps | check | wall s | error message / note |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for o in outcomes:
         check = "" if o.check_ratio is None else f"{o.check_ratio:.2g}"
         note = (o.note or ("" if o.converged else (o.message or ""))).replace("|", "\\|")
-        lines.append(f"| {o.case} | {o.outcome} | {o.factorizations} | {o.substeps} | {o.dt_halvings} | "
-                     f"{o.time_steps} | {check} | {o.wall_s:.1f} | {note} |")
+        lines.append(
+            f"| {o.case} | {o.outcome} | {o.factorizations} | {o.substeps} | {o.dt_halvings} | "
+            f"{o.time_steps} | {check} | {o.wall_s:.1f} | {note} |"
+        )
     return "\n".join(lines)
 
 
@@ -493,8 +586,10 @@ def spectra() -> str:
     """Markdown table: :func:`spectrum_cell` for each setting of :data:`SPECTRA_SETTINGS` (columns)
     and spacing of :data:`SPECTRA_K` (rows)."""
     gap = 4.5e-3  # R2 - R1 of conduction_small
-    lines = ["| K | dr (mm) | N | " + " | ".join(SPECTRA_SETTINGS) + " |",
-             "| --- | --- | --- | " + " | ".join("---" for _ in SPECTRA_SETTINGS) + " |"]
+    lines = [
+        "| K | dr (mm) | N | " + " | ".join(SPECTRA_SETTINGS) + " |",
+        "| --- | --- | --- | " + " | ".join("---" for _ in SPECTRA_SETTINGS) + " |",
+    ]
     for K in SPECTRA_K:
         dr = {"geometry.dr": repr(gap / K)}
         n = build_cloud(load_scene("conduction_small").with_overrides(dr).geometry).size

@@ -123,7 +123,8 @@ def variants(point_pattern, n_fields):
     except ImportError:
         print("KLU not measured: pip install pyklu", file=sys.stderr)
     else:
-        out += [("KLU", klu, None), ("rcm KLU", klu, perms["rcm"]), ("rcm-interleaved KLU", klu, perms["rcm-interleaved"])]
+        out += [("KLU", klu, None), ("rcm KLU", klu, perms["rcm"]),
+                ("rcm-interleaved KLU", klu, perms["rcm-interleaved"])]
     try:
         pardiso = _Pardiso()
     except (ImportError, OSError):
@@ -141,8 +142,7 @@ def measure(A, point_pattern, n_fields, repeats: int, order: int) -> list:
     norm_A = scipy.sparse.linalg.norm(A, np.inf)
     rows = []
     setups = variants(point_pattern, n_fields)
-    mats = {id(perm): (A if perm is None else scipy.sparse.csc_matrix(A[perm][:, perm]))
-            for _, _, perm in setups}
+    mats = {id(perm): (A if perm is None else scipy.sparse.csc_matrix(A[perm][:, perm])) for _, _, perm in setups}
     times = {name: {"factor": [], "solves": []} for name, _, _ in setups}
     results = {}
     for _ in range(repeats):
@@ -163,9 +163,17 @@ def measure(A, point_pattern, n_fields, repeats: int, order: int) -> list:
     for name, _, _ in setups:
         fill, x = results[name]
         f, s = np.median(times[name]["factor"]), np.median(times[name]["solves"])
-        rows.append({"variant": name, "factorize_ms": 1e3 * f, "solves_ms": 1e3 * s, "total_ms": 1e3 * (f + s),
-                     "nnz_LU": fill, "residual": float(np.abs(A @ x - b).max() / (norm_A * np.abs(x).max())),
-                     "diff_from_reference": float(np.abs(x - x_ref).max() / np.abs(x_ref).max())})
+        rows.append(
+            {
+                "variant": name,
+                "factorize_ms": 1e3 * f,
+                "solves_ms": 1e3 * s,
+                "total_ms": 1e3 * (f + s),
+                "nnz_LU": fill,
+                "residual": float(np.abs(A @ x - b).max() / (norm_A * np.abs(x).max())),
+                "diff_from_reference": float(np.abs(x - x_ref).max() / np.abs(x_ref).max()),
+            }
+        )
     return rows
 
 
@@ -173,20 +181,27 @@ def write(rows, meta, out: pathlib.Path) -> None:
     """``OUT.json`` and ``OUT.md``."""
     out.with_suffix(".json").write_text(json.dumps({**meta, "rows": rows}, indent=1) + "\n")
     p = meta["order"]
-    lines = ["# Sparse LU of the fsw_paper tangent: orderings, renumbering, solvers", "",
-             f"Made by `python benchmarks/lu_orderings.py` (issue 14, item 2) on {meta['date']}: the tangent "
-             f"after 3 Newton steps from rest ({meta['n']} unknowns, {meta['nnz']} non-zeros); medians of "
-             f"{meta['repeats']} rounds, the variants back to back in each round; load average (1 min) "
-             f"{meta['loadavg']}.  `solves` is {p} single right-hand-side solves (one ANM step at order {p}); "
-             "`residual` is |A x - b|_inf / (|A|_inf |x|_inf) for a random b, `diff` the largest "
-             f"difference from {meta['reference']} with partial pivoting (the choice before issue 14) relative to max |x|.  `rcm`: points "
-             "renumbered by reverse Cuthill-McKee, unknowns field by field; `rcm-interleaved`: point by point.",
-             "", "| variant | factorise (ms) | solves (ms) | total (ms) | nnz(L+U) | residual | diff |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [
+        "# Sparse LU of the fsw_paper tangent: orderings, renumbering, solvers",
+        "",
+        f"Made by `python benchmarks/lu_orderings.py` (issue 14, item 2) on {meta['date']}: the tangent "
+        f"after 3 Newton steps from rest ({meta['n']} unknowns, {meta['nnz']} non-zeros); medians of "
+        f"{meta['repeats']} rounds, the variants back to back in each round; load average (1 min) "
+        f"{meta['loadavg']}.  `solves` is {p} single right-hand-side solves (one ANM step at order {p}); "
+        "`residual` is |A x - b|_inf / (|A|_inf |x|_inf) for a random b, `diff` the largest "
+        f"difference from {meta['reference']} with partial pivoting (the earlier choice) relative to max |x|.  "
+        "`rcm`: points "
+        "renumbered by reverse Cuthill-McKee, unknowns field by field; `rcm-interleaved`: point by point.",
+        "",
+        "| variant | factorise (ms) | solves (ms) | total (ms) | nnz(L+U) | residual | diff |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for r in sorted(rows, key=lambda r: r["total_ms"]):
         fill = "n/a" if r["nnz_LU"] is None else f"{r['nnz_LU'] / 1e6:.3f}e6"
-        lines.append(f"| {r['variant']} | {r['factorize_ms']:.1f} | {r['solves_ms']:.2f} | {r['total_ms']:.1f} | "
-                     f"{fill} | {r['residual']:.1e} | {r['diff_from_reference']:.1e} |")
+        lines.append(
+            f"| {r['variant']} | {r['factorize_ms']:.1f} | {r['solves_ms']:.2f} | {r['total_ms']:.1f} | "
+            f"{fill} | {r['residual']:.1e} | {r['diff_from_reference']:.1e} |"
+        )
     if meta.get("note"):
         lines += ["", meta["note"]]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
@@ -206,12 +221,21 @@ def main() -> None:
     load = f"{load0:.2f} -> {os.getloadavg()[0]:.2f}"
     for r in sorted(rows, key=lambda r: r["total_ms"]):
         fill = "n/a" if r["nnz_LU"] is None else f"{r['nnz_LU']:9d}"
-        print(f"{r['variant']:<50} factor {r['factorize_ms']:7.1f} ms  {args.order} solves {r['solves_ms']:6.2f} ms  "
-              f"nnz(L+U) {fill}  residual {r['residual']:.1e}  diff {r['diff_from_reference']:.1e}")
+        print(
+            f"{r['variant']:<50} factor {r['factorize_ms']:7.1f} ms  {args.order} solves {r['solves_ms']:6.2f} ms  "
+            f"nnz(L+U) {fill}  residual {r['residual']:.1e}  diff {r['diff_from_reference']:.1e}"
+        )
     print(f"load average (1 min): {load}")
-    meta = {"date": datetime.date.today().isoformat(), "loadavg": load, "repeats": args.repeats,
-            "order": args.order, "n": A.shape[0], "nnz": int(A.nnz), "reference": REFERENCE,
-            "note": args.note}
+    meta = {
+        "date": datetime.date.today().isoformat(),
+        "loadavg": load,
+        "repeats": args.repeats,
+        "order": args.order,
+        "n": A.shape[0],
+        "nnz": int(A.nnz),
+        "reference": REFERENCE,
+        "note": args.note,
+    }
     write(rows, meta, pathlib.Path(args.out))
 
 

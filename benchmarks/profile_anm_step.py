@@ -12,7 +12,8 @@ dr = 7.5e-4, 717 unknowns, warm state after 10 steps) and on the reaction-diffus
    hence O(p^3) per series;
 4. compile time of the series function per order.
 
-    python benchmarks/profile_anm_step.py [--orders 3,5,7] [--problem fsw_reduced|rd] [--out benchmarks/results/profile_anm_step.json]
+    python benchmarks/profile_anm_step.py [--orders 3,5,7] [--problem fsw_reduced|rd] \
+        [--out benchmarks/results/profile_anm_step.json]
 """
 
 from __future__ import annotations
@@ -61,14 +62,24 @@ def series_dissection(prob, x0, orders, repeats=20) -> list:
             res = jax.jit(prob["residual"])
             np.asarray(res(x0, x0, t_, dt_, params))
             res_host = ac.median_time(lambda: np.asarray(res(x0, x0, t_, dt_, params)), repeats)
-            rows.append({"order": p, "terms": p - 1, "compile_s": compile_s, "call_host_args_ms": 1e3 * host,
-                         "call_device_args_ms": 1e3 * dev, "device_execution_ms": 1e3 * exe,
-                         "residual_call_host_args_ms": 1e3 * res_host,
-                         "per_series_ms": 1e3 * host * (p - 1)})
-            print(f"p={p:2d}: compile {compile_s:6.2f}s  series call {1e3 * host:7.2f} ms (host args) "
-                  f"{1e3 * dev:7.2f} ms (device args) {1e3 * exe:7.2f} ms (execution)  "
-                  f"x{p - 1} per series = {1e3 * host * (p - 1):7.1f} ms; residual {1e3 * res_host:.2f} ms",
-                  flush=True)
+            rows.append(
+                {
+                    "order": p,
+                    "terms": p - 1,
+                    "compile_s": compile_s,
+                    "call_host_args_ms": 1e3 * host,
+                    "call_device_args_ms": 1e3 * dev,
+                    "device_execution_ms": 1e3 * exe,
+                    "residual_call_host_args_ms": 1e3 * res_host,
+                    "per_series_ms": 1e3 * host * (p - 1),
+                }
+            )
+            print(
+                f"p={p:2d}: compile {compile_s:6.2f}s  series call {1e3 * host:7.2f} ms (host args) "
+                f"{1e3 * dev:7.2f} ms (device args) {1e3 * exe:7.2f} ms (execution)  "
+                f"x{p - 1} per series = {1e3 * host * (p - 1):7.1f} ms; residual {1e3 * res_host:.2f} ms",
+                flush=True,
+            )
     return rows
 
 
@@ -85,11 +96,21 @@ def profile_run(prob, x0, order, tol):
     pstats.Stats(pr, stream=buf).sort_stats("cumulative").print_stats(25)
     split = {k: v for k, v in st.wall_time.items()}
     steps = st.time_steps
-    return {"order": order, "tol": tol, "first_run_s": first, "wall_s": wall, "time_steps": steps,
-            "factorizations": st.factorizations, "series_orders": st.series_orders,
-            "residual_evaluations": st.residual_evaluations, "substeps": st.substeps,
-            "split_s": split, "split_share": {k: v / wall for k, v in split.items()},
-            "per_step_ms": 1e3 * wall / steps, "cprofile_top": buf.getvalue()}
+    return {
+        "order": order,
+        "tol": tol,
+        "first_run_s": first,
+        "wall_s": wall,
+        "time_steps": steps,
+        "factorizations": st.factorizations,
+        "series_orders": st.series_orders,
+        "residual_evaluations": st.residual_evaluations,
+        "substeps": st.substeps,
+        "split_s": split,
+        "split_share": {k: v / wall for k, v in split.items()},
+        "per_step_ms": 1e3 * wall / steps,
+        "cprofile_top": buf.getvalue(),
+    }
 
 
 def main(argv=None) -> None:
@@ -106,12 +127,18 @@ def main(argv=None) -> None:
     refs = dict(np.load(ac._cache_file(args.problem, cfg)))
     prob = ac.build_problem(args.problem, cfg)
     x0 = refs["x0"]
-    result = {"problem": args.problem, "cfg": cfg, "loadavg_start": os.getloadavg(),
-              "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())}
+    result = {
+        "problem": args.problem,
+        "cfg": cfg,
+        "loadavg_start": os.getloadavg(),
+        "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+    }
     run = profile_run(prob, x0, args.profile_order, args.tol)
-    print(f"\nANM p={run['order']} tol={run['tol']:g}: {run['time_steps']} steps, {run['wall_s']:.3f} s "
-          f"({run['per_step_ms']:.1f} ms/step), {run['factorizations']} factorizations, "
-          f"{run['series_orders']} series evaluations; first (compiling) run {run['first_run_s']:.1f} s")
+    print(
+        f"\nANM p={run['order']} tol={run['tol']:g}: {run['time_steps']} steps, {run['wall_s']:.3f} s "
+        f"({run['per_step_ms']:.1f} ms/step), {run['factorizations']} factorizations, "
+        f"{run['series_orders']} series evaluations; first (compiling) run {run['first_run_s']:.1f} s"
+    )
     for k, v in run["split_s"].items():
         print(f"  {k:10s} {v:7.3f} s  {100 * run['split_share'][k]:5.1f} %")
     print(run["cprofile_top"])

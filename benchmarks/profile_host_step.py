@@ -475,9 +475,20 @@ def main() -> None:
     load = f"{load_before[0]:.2f} -> {load_after[0]:.2f}"
     print(f"load average (1 min): {load}")
     if not args.no_write:
-        commit = args.commit or os.popen("git -C " + str(RESULTS.parent.parent) + " rev-parse --short HEAD").read().strip()
-        write(args.label, parts, cpu, {"date": datetime.date.today().isoformat(), "loadavg": load,
-                                  "repeats": args.repeats, "commit": commit, "note": args.note})
+        head = os.popen("git -C " + str(RESULTS.parent.parent) + " rev-parse --short HEAD").read().strip()
+        commit = args.commit or head
+        write(
+            args.label,
+            parts,
+            cpu,
+            {
+                "date": datetime.date.today().isoformat(),
+                "loadavg": load,
+                "repeats": args.repeats,
+                "commit": commit,
+                "note": args.note,
+            },
+        )
 
 
 if __name__ == "__main__":

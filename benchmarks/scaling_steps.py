@@ -42,6 +42,7 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from scaling import fit_exponent  # noqa: E402
+
 SOLVER_KINDS = {"anm": "anm", "mnewton": "modified_newton", "newton": "newton"}
 
 
@@ -103,8 +104,20 @@ def measure(dr: float, solver: str, steps: int, timeout: float, start_kind: str,
     lines = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
     stamps = [x for x in lines if "t" in x]
     summary = next((x for x in lines if x.get("done")), {})
-    row = {"N": next((x["N"] for x in lines if "N" in x), None), "dr": dr, "solver": solver, "start_kind": start_kind, "overrides": overrides, "steps_asked": steps, "steps_done": len(stamps), "timed_out": timed_out,
-           "returncode": proc.returncode, "load": [load0, os.getloadavg()[0]], "stamps": stamps, **summary}
+    row = {
+        "N": next((x["N"] for x in lines if "N" in x), None),
+        "dr": dr,
+        "solver": solver,
+        "start_kind": start_kind,
+        "overrides": overrides,
+        "steps_asked": steps,
+        "steps_done": len(stamps),
+        "timed_out": timed_out,
+        "returncode": proc.returncode,
+        "load": [load0, os.getloadavg()[0]],
+        "stamps": stamps,
+        **summary,
+    }
     rss = [x["rss_mb"] for x in lines if "rss_mb" in x]
     if rss:
         row["rss_peak_mb"] = max(rss)
@@ -121,16 +134,23 @@ def measure(dr: float, solver: str, steps: int, timeout: float, start_kind: str,
 
 def markdown(result: dict) -> str:
     """The table of every run and the fitted exponents."""
-    lines = [f"<!-- made by benchmarks/scaling_steps.py {' '.join(result['argv'])} -->", "",
-             "# Real fsw_paper steps against the number of points (issue 14, item 3)", "",
-             f"{result['date']}, {result['cpus']} cores; each run in a fresh process, one after the "
-             f"other; load average (1 min) at start and end of each run beside it.  Start: `rest` "
-             f"(impulsive) or `quasi_static` (the stationary flow at T0 solved first by damped "
-             f"Newton: its factorisations and wall time, compilation included, are given on their "
-             f"own and are not in the first step or the step counters).", "",
-             "| dr | N | solver | start | start: factorisations, s | steps | first step (s) | median step (s) | mean step (s) | factorisations "
-             "| dt halvings | factorise (s) | solve (s) | series (s) | other (s) | peak RSS (GB) | load |",
-             "| --- | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
+    lines = [
+        f"<!-- made by benchmarks/scaling_steps.py {' '.join(result['argv'])} -->",
+        "",
+        "# Real fsw_paper steps against the number of points (issue 14, item 3)",
+        "",
+        f"{result['date']}, {result['cpus']} cores; each run in a fresh process, one after the "
+        f"other; load average (1 min) at start and end of each run beside it.  Start: `rest` "
+        f"(impulsive) or `quasi_static` (the stationary flow at T0 solved first by damped "
+        f"Newton: its factorisations and wall time, compilation included, are given on their "
+        f"own and are not in the first step or the step counters).",
+        "",
+        "| dr | N | solver | start | start: factorisations, s | steps | first step (s) | median step (s) "
+        "| mean step (s) | factorisations | dt halvings | factorise (s) | solve (s) | series (s) | other (s) "
+        "| peak RSS (GB) | load |",
+        "| --- | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+        "| --- |",
+    ]
     for r in result["runs"]:
         wt = r.get("wall_time", {})
         stats = r.get("stats", {})
@@ -143,25 +163,38 @@ def markdown(result: dict) -> str:
         st = r.get("start") or {}
         start_cost = f"{st['factorizations']}, {st['wall']:.3g}" if st else ""
         label = r["solver"] + "".join(f", {k}={v}" for k, v in (r.get("overrides") or {}).items())
-        lines.append(f"| {r['dr']:.4g} | {r.get('N') or ''} | {label} | {r.get('start_kind', 'rest')} "
-                     f"| {start_cost} | {done} | {f(r.get('first_step_s'))} "
-                     f"| {f(r.get('median_step_s'))} | {f(r.get('mean_step_s'))} "
-                     f"| {stats.get('factorizations', last.get('factorizations', ''))} "
-                     f"| {stats.get('dt_halvings', last.get('dt_halvings', ''))} | {f(wt.get('factorize'))} "
-                     f"| {f(wt.get('solve'))} | {f(wt.get('series'))} | {f(wt.get('other'))} "
-                     f"| {f(r.get('rss_peak_mb', 0) / 1024, '{:.2f}')} | {r['load'][0]:.1f} -> {r['load'][1]:.1f} |")
+        lines.append(
+            f"| {r['dr']:.4g} | {r.get('N') or ''} | {label} | {r.get('start_kind', 'rest')} "
+            f"| {start_cost} | {done} | {f(r.get('first_step_s'))} "
+            f"| {f(r.get('median_step_s'))} | {f(r.get('mean_step_s'))} "
+            f"| {stats.get('factorizations', last.get('factorizations', ''))} "
+            f"| {stats.get('dt_halvings', last.get('dt_halvings', ''))} | {f(wt.get('factorize'))} "
+            f"| {f(wt.get('solve'))} | {f(wt.get('series'))} | {f(wt.get('other'))} "
+            f"| {f(r.get('rss_peak_mb', 0) / 1024, '{:.2f}')} | {r['load'][0]:.1f} -> {r['load'][1]:.1f} |"
+        )
     if result.get("exponents"):
-        lines += ["", "Exponents a of cost ~ N^a (least squares over the levels that finished):", "",
-                  "| solver | median step | mean step | peak RSS |", "| --- | ---: | ---: | ---: |"]
+        lines += [
+            "",
+            "Exponents a of cost ~ N^a (least squares over the levels that finished):",
+            "",
+            "| solver | median step | mean step | peak RSS |",
+            "| --- | ---: | ---: | ---: |",
+        ]
         for solver, e in result["exponents"].items():
-            lines.append(f"| {solver} | " + " | ".join("" if e.get(k) is None else f"{e[k]:.2f}"
-                                                      for k in ("median_step_s", "mean_step_s", "rss_peak_mb")) + " |")
+            lines.append(
+                f"| {solver} | "
+                + " | ".join(
+                    "" if e.get(k) is None else f"{e[k]:.2f}" for k in ("median_step_s", "mean_step_s", "rss_peak_mb")
+                )
+                + " |"
+            )
     return "\n".join(lines) + "\n"
 
 
 def plot(result: dict, path: pathlib.Path) -> None:
     """Median step time and peak memory against N, one line per solver."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -186,13 +219,25 @@ def main(argv=None) -> None:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds before a run is stopped")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "scaling_steps"))
-    ap.add_argument("--report-only", action="store_true",
-                    help="rebuild the exponents, table and plot from the runs already in OUT.json (e.g. after stopping)")
-    ap.add_argument("--start", default="rest", choices=("rest", "quasi_static"),
-                    help="mechanics.start of every run: from rest (the scene's default) or from the "
-                         "stationary flow at T0 solved first (finer clouds need it)")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="scene override of every run (as `jaxanm run --set`), e.g. solver.max_rate=0.9")
+    ap.add_argument(
+        "--report-only",
+        action="store_true",
+        help="rebuild the exponents, table and plot from the runs already in OUT.json (e.g. after stopping)",
+    )
+    ap.add_argument(
+        "--start",
+        default="rest",
+        choices=("rest", "quasi_static"),
+        help="mechanics.start of every run: from rest (the scene's default) or from the "
+        "stationary flow at T0 solved first (finer clouds need it)",
+    )
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="scene override of every run (as `jaxanm run --set`), e.g. solver.max_rate=0.9",
+    )
     ap.add_argument("--worker", nargs=5, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker is not None:
@@ -209,8 +254,12 @@ def main(argv=None) -> None:
     if bad:
         ap.error(f"--set takes KEY=VALUE, got {bad[0]!r}")
     overrides = dict(kv.split("=", 1) for kv in args.set)
-    result = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "cpus": os.cpu_count(),
-              "argv": sys.argv[1:] if argv is None else list(argv), "runs": []}
+    result = {
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "cpus": os.cpu_count(),
+        "argv": sys.argv[1:] if argv is None else list(argv),
+        "runs": [],
+    }
     for d in args.divisors:
         for solver in args.solvers:
             row = measure(dr / d, solver, args.steps, args.timeout, args.start, overrides)
@@ -225,8 +274,10 @@ def report(result: dict, out: pathlib.Path) -> None:
     result["exponents"] = {}
     for solver in sorted({r["solver"] for r in result["runs"]}):
         rows = [r for r in result["runs"] if r["solver"] == solver and r.get("N") and not r["timed_out"]]
-        result["exponents"][solver] = {k: fit_exponent([r["N"] for r in rows], [r.get(k, np.nan) for r in rows])
-                                       for k in ("median_step_s", "mean_step_s", "rss_peak_mb")}
+        result["exponents"][solver] = {
+            k: fit_exponent([r["N"] for r in rows], [r.get(k, np.nan) for r in rows])
+            for k in ("median_step_s", "mean_step_s", "rss_peak_mb")
+        }
     out.with_suffix(".json").write_text(json.dumps(result, indent=1))
     out.with_suffix(".md").write_text(markdown(result))
     plot(result, out.with_suffix(".png"))

@@ -43,14 +43,13 @@ HERE = pathlib.Path(__file__).resolve().parent
 def measure(order: int, mode: str, homotopy: str, repeats: int, warm: int) -> dict:
     """One variant, in this process: compile and per-series times (s and ms)."""
     sys.path.insert(0, str(HERE))
-    import profile_host_step
-
     import jax
+    import profile_host_step
 
     import jaxanm
     from jaxanm import series as series_module
-    from jaxanm.solvers import _affine_functions
     from jaxanm.series import AffinePath
+    from jaxanm.solvers import _affine_functions
 
     if mode == "exact":
         series_module.EXACT_TERMS = 10**6

@@ -17,7 +17,8 @@ the solves each method's own acceptance uses at ``--tol`` (modified Newton: unti
 ``|dx| <= tol |x|``; the order-adaptive ANM: the first order whose a_max reaches 1, plus the
 end-point check's solve) and the true error of what it accepts.
 
-    python benchmarks/series_vs_newton.py [--dt 1e-4] [--steps 150,400] [--orders 12] [--out benchmarks/results/series_vs_newton_dt1e-4]
+    python benchmarks/series_vs_newton.py [--dt 1e-4] [--steps 150,400] [--orders 12] \
+        [--out benchmarks/results/series_vs_newton_dt1e-4]
 
 Writes ``OUT.json``, ``OUT.md`` and ``OUT.png`` with ``--out``.
 """
@@ -54,8 +55,16 @@ def capture(dt: float, step: int, workdir: str) -> dict:
     run(scene, checkpoint=path)
     payload = ckpt.read(path)
     _, _, model, _, _ = discretise(scene)
-    return {"scene": scene, "model": model, "x_old": np.asarray(payload["x"]), "params": payload["params"],
-            "kstar": payload["kstar"], "t": (step + 1) * dt, "dt": dt, "step": step + 1}
+    return {
+        "scene": scene,
+        "model": model,
+        "x_old": np.asarray(payload["x"]),
+        "params": payload["params"],
+        "kstar": payload["kstar"],
+        "t": (step + 1) * dt,
+        "dt": dt,
+        "step": step + 1,
+    }
 
 
 def exact_solution(P: Problem, x_old, args) -> np.ndarray:
@@ -132,7 +141,8 @@ def study(case: dict, orders: int, tol: float) -> dict:
             rows[f"ANM {homotopy}"] = [err(x_old + coeffs[:j].sum(axis=0)) for j in range(1, orders + 1)]
             rows[f"ANM {homotopy} + Padé"] = [
                 float("nan") if j < 3 else err(x_old + pade.evaluate(pade.approximant(coeffs[:j], P.scale), 1.0))
-                for j in range(1, orders + 1)]
+                for j in range(1, orders + 1)
+            ]
             got = anm_acceptance(P, fact, coeffs, x_old, args, tol)
             accept[f"ANM {homotopy}"] = None if got is None else {"solves": got[0], "error": err(got[1])}
         out["kstar"][kind] = {"errors": rows, "acceptance": accept}
@@ -145,15 +155,25 @@ def markdown(results: list, tol: float) -> str:
     for res in results:
         for kind, block in res["kstar"].items():
             n = len(next(iter(block["errors"].values())))
-            lines += [f"### step {res['step']} (t = {res['t']:.4g} s, dt = {res['dt']:g}), {kind} K*: "
-                      f"|x_old - x*| / |x*| = {res['start_error']:.2e}", "",
-                      "| solves | " + " | ".join(str(j) for j in range(1, n + 1)) + " |",
-                      "| --- |" + " ---: |" * n]
+            lines += [
+                f"### step {res['step']} (t = {res['t']:.4g} s, dt = {res['dt']:g}), {kind} K*: "
+                f"|x_old - x*| / |x*| = {res['start_error']:.2e}",
+                "",
+                "| solves | " + " | ".join(str(j) for j in range(1, n + 1)) + " |",
+                "| --- |" + " ---: |" * n,
+            ]
             for name, errs in block["errors"].items():
                 lines.append(f"| {name} | " + " | ".join("" if not np.isfinite(e) else f"{e:.1e}" for e in errs) + " |")
-            lines += ["", f"Own acceptance at tol = {tol:g}: " + "; ".join(
-                f"{name}: {'none' if a is None else str(a['solves']) + ' solves, error ' + format(a['error'], '.1e')}"
-                for name, a in block["acceptance"].items()), ""]
+            lines += [
+                "",
+                f"Own acceptance at tol = {tol:g}: "
+                + "; ".join(
+                    f"{name}: "
+                    f"{'none' if a is None else str(a['solves']) + ' solves, error ' + format(a['error'], '.1e')}"
+                    for name, a in block["acceptance"].items()
+                ),
+                "",
+            ]
     return "\n".join(lines)
 
 
@@ -166,8 +186,13 @@ def plot(results: list, path: pathlib.Path) -> None:
 
     panels = [(res, kind) for res in results for kind in res["kstar"]]
     fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6), squeeze=False)
-    styles = {"modified Newton": "k-o", "ANM convex": "C0-s", "ANM convex + Padé": "C0:s",
-              "ANM newton": "C1-^", "ANM newton + Padé": "C1:^"}
+    styles = {
+        "modified Newton": "k-o",
+        "ANM convex": "C0-s",
+        "ANM convex + Padé": "C0:s",
+        "ANM newton": "C1-^",
+        "ANM newton + Padé": "C1:^",
+    }
     for ax, (res, kind) in zip(axes[0], panels):
         for name, errs in res["kstar"][kind]["errors"].items():
             ax.semilogy(range(1, len(errs) + 1), errs, styles[name], ms=3, label=name)
@@ -199,8 +224,10 @@ def main(argv=None) -> None:
         out = pathlib.Path(args.out)
         meta = {"date": datetime.date.today().isoformat(), "argv": sys.argv[1:], "tol": args.tol}
         out.with_suffix(".json").write_text(json.dumps({"meta": meta, "results": results}, indent=1, default=float))
-        out.with_suffix(".md").write_text(f"<!-- made by benchmarks/series_vs_newton.py {' '.join(sys.argv[1:])} -->\n\n"
-                                          + text + "\n", encoding="utf-8")
+        out.with_suffix(".md").write_text(
+            f"<!-- made by benchmarks/series_vs_newton.py {' '.join(sys.argv[1:])} -->\n\n" + text + "\n",
+            encoding="utf-8",
+        )
         plot(results, out.with_suffix(".png"))
         print(f"wrote {out}.json, .md, .png")
 

@@ -255,7 +255,7 @@ def _fmt(x, spec=".4g"):
 
 def markdown(table: dict, meta: dict) -> str:
     """The tables of the study."""
-    lines = [f"# Spatial convergence of the fsw_paper physics", "",
+    lines = ["# Spatial convergence of the fsw_paper physics", "",
              f"{meta['date']}; `python benchmarks/spatial_convergence.py` (modified Newton, the scenes' dt = 1e-4); "
              f"oracle: `jaxanm.fsw.axisymmetric` (estimated error {meta['oracle_error']}).  h is the plate's ring "
              "spacing; p the order fitted to the three values, 'continuum (p)' the Richardson estimate with that p "
@@ -271,20 +271,27 @@ def markdown(table: dict, meta: dict) -> str:
         for t, rows in sc["times"].items():
             if not rows:
                 continue
-            lines += [f"### t = {float(t):g} s", "",
-                      "| quantity | dr | dr/√2 | dr/2 | p | continuum (p) | continuum (1) | oracle | rel. err. (dr, dr/√2, dr/2) | slope |",
-                      "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+            lines += [
+                f"### t = {float(t):g} s",
+                "",
+                "| quantity | dr | dr/√2 | dr/2 | p | continuum (p) | continuum (1) | oracle "
+                "| rel. err. (dr, dr/√2, dr/2) | slope |",
+                "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+            ]
             for label, row in rows.items():
                 if "oracle" in row:
                     v = row["values"]
-                    lines.append(f"| {label} | {v[0]:.4g} | {v[1]:.4g} | {v[2]:.4g} | {_fmt(row['order'], '.2f')} | "
-                                 f"{_fmt(row['richardson'])} | {_fmt(row['richardson_p1'])} | {row['oracle']:.4g} | "
-                                 + ", ".join(f"{e:.3f}" for e in row["rel_error_vs_oracle"])
-                                 + f" | {_fmt(row['slope_vs_oracle'], '.2f')} |")
+                    lines.append(
+                        f"| {label} | {v[0]:.4g} | {v[1]:.4g} | {v[2]:.4g} | {_fmt(row['order'], '.2f')} | "
+                        f"{_fmt(row['richardson'])} | {_fmt(row['richardson_p1'])} | {row['oracle']:.4g} | "
+                        + ", ".join(f"{e:.3f}" for e in row["rel_error_vs_oracle"])
+                        + f" | {_fmt(row['slope_vs_oracle'], '.2f')} |"
+                    )
                 else:
                     v = row["values"]
-                    lines.append(f"| {label} | {v[0]:.3f} | {v[1]:.3f} | {v[2]:.3f} | | | | 0 | | "
-                                 f"{_fmt(row['slope'], '.2f')} |")
+                    lines.append(
+                        f"| {label} | {v[0]:.3f} | {v[1]:.3f} | {v[2]:.3f} | | | | 0 | | {_fmt(row['slope'], '.2f')} |"
+                    )
             lines.append("")
     return "\n".join(lines) + "\n"
 
@@ -304,8 +311,14 @@ def plot(table: dict, path: pathlib.Path) -> None:
                 continue
             for qi, label in enumerate(["T-T0 at probe 1", "T-T0 at probe 2", "T-T0 at probe 3", "P_h (W/m)"]):
                 if label in rows:
-                    ax.loglog(h, rows[label]["rel_error_vs_oracle"], ["o-", "s-", "^-", "d--"][qi],
-                              color=f"C{ti}", ms=4, label=f"{label.split(' (')[0]}, t = {float(t):g} s")
+                    ax.loglog(
+                        h,
+                        rows[label]["rel_error_vs_oracle"],
+                        ["o-", "s-", "^-", "d--"][qi],
+                        color=f"C{ti}",
+                        ms=4,
+                        label=f"{label.split(' (')[0]}, t = {float(t):g} s",
+                    )
         ax.loglog(h, 0.15 * (h / h[0]), "k:", lw=1, label="slope 1")
         ax.set_title(name)
         ax.set_xlabel("plate ring spacing h (mm)")
@@ -339,16 +352,23 @@ def main(argv=None) -> None:
                 records.append(cached_run(cache, name, f, t_end))
     oracle = {name: oracle_values(name, t_end) for name, t_end in scenes}
     table = analyse(records, oracle)
-    meta = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-            "oracle_error": "; ".join(f"{n}: {oracle[n]['error']}" for n in oracle), "scenes": a.scenes,
-            "levels": levels}
+    meta = {
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "oracle_error": "; ".join(f"{n}: {oracle[n]['error']}" for n in oracle),
+        "scenes": a.scenes,
+        "levels": levels,
+    }
     text = markdown(table, meta)
     print(text)
     if a.out:
         out = pathlib.Path(a.out)
         out.with_suffix(".md").write_text(text)
-        out.with_suffix(".json").write_text(json.dumps({"meta": meta, "table": table, "runs": [
-            {k: v for k, v in r.items() if k != "times"} for r in records]}, indent=1))
+        out.with_suffix(".json").write_text(
+            json.dumps(
+                {"meta": meta, "table": table, "runs": [{k: v for k, v in r.items() if k != "times"} for r in records]},
+                indent=1,
+            )
+        )
         plot(table, out.with_suffix(".png"))
 
 

@@ -140,18 +140,24 @@ def reference(scene_name: str, t_end: float, dt_ref: float, tol: float, times=No
 
 def markdown(rows: list, meta: dict) -> str:
     """The table of every run."""
-    lines = [f"Scene `{meta['scene']}` over [0, {meta['t_end']:g}] s; reference: Richardson from dt = "
-             f"{meta['dt_ref']:g} and {meta['dt_ref'] / 2:g} (modified Newton, tol {meta['ref_tol']:g}); its own "
-             f"error estimate {meta['ref_error'][0]:.1e} (T), {meta['ref_error'][1]:.1e} (V).  {meta['date']}.", "",
-             "| solver | step sizes | dt / atol | steps (rejected) | factorisations | error T | error V | CPU (s) | wall (s) | load |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        f"Scene `{meta['scene']}` over [0, {meta['t_end']:g}] s; reference: Richardson from dt = "
+        f"{meta['dt_ref']:g} and {meta['dt_ref'] / 2:g} (modified Newton, tol {meta['ref_tol']:g}); its own "
+        f"error estimate {meta['ref_error'][0]:.1e} (T), {meta['ref_error'][1]:.1e} (V).  {meta['date']}.",
+        "",
+        "| solver | step sizes | dt / atol | steps (rejected) | factorisations | error T | error V | CPU (s) "
+        "| wall (s) | load |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for r in rows:
         ov = r["overrides"]
         mode = "adaptive" if ov.get("time.adaptive") == "true" else "fixed"
         knob = ov["time.atol"] if mode == "adaptive" else ov["time.dt"]
-        lines.append(f"| {ov['solver.kind']} | {mode} | {knob} | {r['steps']} ({r['rejected']}) | {r['factorizations']} | "
-                     f"{r['error_T']:.1e} | {r['error_V']:.1e} | {r['cpu_s']:.1f} | {r['wall_s']:.1f} | "
-                     f"{r['load'][0]:.1f}-{r['load'][1]:.1f} |")
+        lines.append(
+            f"| {ov['solver.kind']} | {mode} | {knob} | {r['steps']} ({r['rejected']}) | {r['factorizations']} | "
+            f"{r['error_T']:.1e} | {r['error_V']:.1e} | {r['cpu_s']:.1f} | {r['wall_s']:.1f} | "
+            f"{r['load'][0]:.1f}-{r['load'][1]:.1f} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -165,11 +171,21 @@ def plot(rows: list, path: pathlib.Path) -> None:
     fig, ax = plt.subplots(figsize=(5.5, 4))
     for kind, color in (("anm", "C0"), ("modified_newton", "C1")):
         for mode, marker in (("fixed", "o-"), ("adaptive", "s--")):
-            sel = [r for r in rows if r["overrides"]["solver.kind"] == kind
-                   and (r["overrides"].get("time.adaptive") == "true") == (mode == "adaptive")]
+            sel = [
+                r
+                for r in rows
+                if r["overrides"]["solver.kind"] == kind
+                and (r["overrides"].get("time.adaptive") == "true") == (mode == "adaptive")
+            ]
             sel.sort(key=lambda r: r["cpu_s"])
-            ax.loglog([r["cpu_s"] for r in sel], [r["error_T"] for r in sel], marker, color=color, ms=4,
-                      label=f"{kind}, {mode} steps")
+            ax.loglog(
+                [r["cpu_s"] for r in sel],
+                [r["error_T"] for r in sel],
+                marker,
+                color=color,
+                ms=4,
+                label=f"{kind}, {mode} steps",
+            )
     ax.set_xlabel("CPU time (s)")
     ax.set_ylabel("error of T - T0 at the probes (rel.)")
     ax.grid(alpha=0.3, which="both")
@@ -198,26 +214,58 @@ def main(argv=None) -> None:
         rows = []
         for kind in a.solvers.split(","):
             for dt in a.dts.split(","):
-                rows.append(one_run(a.scene, {"time.t_end": repr(a.t_end), "time.dt": dt, "time.save": "",
-                                              **SOLVERS[kind]}))
+                rows.append(
+                    one_run(a.scene, {"time.t_end": repr(a.t_end), "time.dt": dt, "time.save": "", **SOLVERS[kind]})
+                )
             for atol in a.atols.split(","):
-                rows.append(one_run(a.scene, {"time.t_end": repr(a.t_end), "time.save": "", "time.adaptive": "true",
-                                              "time.rtol": "0", "time.atol": atol, **SOLVERS[kind]}))
+                rows.append(
+                    one_run(
+                        a.scene,
+                        {
+                            "time.t_end": repr(a.t_end),
+                            "time.save": "",
+                            "time.adaptive": "true",
+                            "time.rtol": "0",
+                            "time.atol": atol,
+                            **SOLVERS[kind],
+                        },
+                    )
+                )
             for r in rows:
                 r["error_T"], r["error_V"] = errors(r, fine, T0, U)
-            print(markdown(rows[-len(a.dts.split(",")) - len(a.atols.split(",")):],
-                           {"scene": a.scene, "t_end": a.t_end, "dt_ref": a.dt_ref, "ref_tol": a.ref_tol,
-                            "ref_error": ref_err, "date": ""}), flush=True)
-    meta = {"scene": a.scene, "t_end": a.t_end, "dt_ref": a.dt_ref, "ref_tol": a.ref_tol, "ref_error": ref_err,
-            "date": datetime.date.today().isoformat(), "argv": sys.argv[1:]}
+            print(
+                markdown(
+                    rows[-len(a.dts.split(",")) - len(a.atols.split(",")) :],
+                    {
+                        "scene": a.scene,
+                        "t_end": a.t_end,
+                        "dt_ref": a.dt_ref,
+                        "ref_tol": a.ref_tol,
+                        "ref_error": ref_err,
+                        "date": "",
+                    },
+                ),
+                flush=True,
+            )
+    meta = {
+        "scene": a.scene,
+        "t_end": a.t_end,
+        "dt_ref": a.dt_ref,
+        "ref_tol": a.ref_tol,
+        "ref_error": ref_err,
+        "date": datetime.date.today().isoformat(),
+        "argv": sys.argv[1:],
+    }
     text = markdown(rows, meta)
     print(text)
     if a.out:
         out = pathlib.Path(a.out)
-        out.with_suffix(".json").write_text(json.dumps({"meta": meta, "reference_runs": ref_runs, "rows": rows},
-                                                       indent=1, default=float))
-        out.with_suffix(".md").write_text(f"<!-- made by benchmarks/time_steps.py {' '.join(sys.argv[1:])} -->\n\n"
-                                          + text, encoding="utf-8")
+        out.with_suffix(".json").write_text(
+            json.dumps({"meta": meta, "reference_runs": ref_runs, "rows": rows}, indent=1, default=float)
+        )
+        out.with_suffix(".md").write_text(
+            f"<!-- made by benchmarks/time_steps.py {' '.join(sys.argv[1:])} -->\n\n" + text, encoding="utf-8"
+        )
         plot(rows, out.with_suffix(".png"))
         print(f"wrote {out}.json, .md, .png")
 

@@ -72,7 +72,10 @@ def _step_form(residual):
 @functools.lru_cache(maxsize=64)
 def _value_and_dlam(residual):
     """Jitted ``(u, lam, params) -> (R, dR/dlam)``: one ``jvp`` gives both."""
-    return jax.jit(lambda u, lam, params: jax.jvp(lambda l: residual(u, l, params), (lam,), (jnp.ones_like(lam),)))
+    def value_and_dlam(u, lam, params):
+        return jax.jvp(lambda at: residual(u, at, params), (lam,), (jnp.ones_like(lam),))
+
+    return jax.jit(value_and_dlam)
 
 
 def _scale_vector(scale, n: int) -> np.ndarray:
@@ -144,7 +147,8 @@ def check_inputs(residual, u0, lam0, params, *, lam_end, stop_at, max_steps, tol
     if direction not in (1, -1):
         raise InputError(f"direction must be +1 (towards increasing lam) or -1, got {direction!r}")
     if factorize is not None and not callable(factorize):
-        raise InputError(f"factorize must be None or a callable (matrix, stats) -> object with solve(rhs), got {factorize!r}")
+        raise InputError("factorize must be None or a callable (matrix, stats) -> object with solve(rhs), "
+                         f"got {factorize!r}")
     _check_output(residual, u0, lam0, params)
     return np.append(u0, lam0), _scale_vector(scale, n), ends
 
@@ -212,8 +216,8 @@ class ExtendedSystem:
         factor lam vanishes at lam = 0."""
         step = _step_form(self._residual)
         lam = U0[-1]
-        probes = [detect_sparsity(step, U0[:-1], None, np.float64(l), None, self.params)
-                  for l in (lam, lam + 0.1 * (1.0 + abs(lam)))]
+        probes = [detect_sparsity(step, U0[:-1], None, np.float64(at), None, self.params)
+                  for at in (lam, lam + 0.1 * (1.0 + abs(lam)))]
         return (probes[0] + probes[1]).astype(bool).tocsc()
 
     def dot(self, a, b) -> float:

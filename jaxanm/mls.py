@@ -21,8 +21,9 @@ weight) come in closed form from differentiating ``A gamma = p`` (see
 equilibrated columns instead of through ``A``: the derivatives lose about
 ``log10(1 / rcond) / 2`` digits instead of the ``log10(1 / rcond)`` of an elimination on ``A``
 (tests/test_mls.py checks them against a 50-digit reference; the comparison with the
-elimination this replaced is in ``benchmarks/results/profile_host_step.md``).  The kernel is jitted ``jax.numpy`` (its results are
-not differentiated with respect to the points: nothing in jaxanm does).
+elimination this replaced is in ``benchmarks/results/profile_host_step.md``).  The kernel is
+jitted ``jax.numpy`` (its results are not differentiated with respect to the points: nothing in
+jaxanm does).
 
 Neighbours come from ``scipy.spatial.cKDTree``, or for a moving cloud from the candidate
 lists of a :class:`NeighbourList` (remade only when some point has moved far).  The compiled

@@ -21,8 +21,8 @@ import json
 import math
 from pathlib import Path
 
-from jaxanm.fsw.compare import differences, load_run
 from jaxanm.checkpoint import atomic_path
+from jaxanm.fsw.compare import differences, load_run
 from jaxanm.sweep.task import COST_COLUMNS
 
 __all__ = ["ERROR_COLUMNS", "TABLE_NAME", "add_errors", "columns", "error_columns", "read_table", "write_table"]

@@ -19,8 +19,8 @@ import time
 import traceback
 from pathlib import Path
 
-from jaxanm.fsw.compare import cost_row
 from jaxanm.checkpoint import atomic_path
+from jaxanm.fsw.compare import cost_row
 
 __all__ = ["COST_COLUMNS", "ROW_FILE", "failed_row", "finished_row", "run_task", "task_spec", "warmup_scene"]
 
@@ -63,8 +63,8 @@ def run_task(spec: dict) -> dict:
     (out / ROW_FILE).unlink(missing_ok=True)  # the directory is no finished run until this task says so
     try:
         from jaxanm import compile_cache
-        from jaxanm.fsw.scene import Scene
         from jaxanm.fsw.io.output import write_outputs, write_run
+        from jaxanm.fsw.scene import Scene
         from jaxanm.fsw.simulate import run
 
         if spec["compile_cache"]:
