@@ -12,20 +12,25 @@ from ._x64 import float64
 from .bordered import ContinuationFailure
 from .continuation import Branch, BranchPoints, continuation, newton_continuation
 from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
-from .integrate import Remap, SensitivityMethod, Solution, integrate
+from ._constant_step import ConstantStepSize
+from ._hooks import Remap
+from ._integrate import Solution, integrate
+from ._run_checkpoint import stored_host_state
+from ._saveat import SaveAt
+from ._sensitivity_method import SensitivityMethod
+from ._step_control import StepController
 from .jacobian import SparseJacobian, color_columns, detect_sparsity
 from .linalg import Factorization, factorize
-from .saveat import SaveAt
 from .sensitivity import ForwardSensitivity, Sensitivities, sensitivities, value_and_grad
 from .series import taylor_coefficients
 from .solvers import ANM, ModifiedNewton, Newton, SolverState, StepSolver, evaluate_series, validity_range
 from .stats import Stats
-from .step_control import StepController
 
 __all__ = [
     "ANM",
     "Branch",
     "BranchPoints",
+    "ConstantStepSize",
     "ContinuationFailure",
     "Factorization",
     "ForwardSensitivity",
@@ -54,6 +59,7 @@ __all__ = [
     "integrate",
     "newton_continuation",
     "sensitivities",
+    "stored_host_state",
     "taylor_coefficients",
     "validity_range",
     "value_and_grad",

@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse
 
 from .errors import InputError, SingularMatrixError, StepFailure, _number
-from .integrate import jacobian_kind, on_device, params_float64
+from ._run_inputs import jacobian_kind, on_device, params_float64
 from .jacobian import detect_sparsity
 from .linalg import Factorization
 from .linalg import factorize as counted_factorize

@@ -243,7 +243,7 @@ def _resume_plan(args: argparse.Namespace):
     """
     from jaxanm.fsw.scene import Scene
     from jaxanm.fsw.simulate import scene_differences
-    from jaxanm.integrate import stored_host_state
+    from jaxanm import stored_host_state
 
     out_dir = args.resume
     path = out_dir / CHECKPOINT_NAME

@@ -65,7 +65,7 @@ import scipy.sparse
 from ._extras import require
 from ._x64 import entry_point
 from .errors import InputError
-from .integrate import params_float64
+from ._run_inputs import params_float64
 from .jacobian import SparseJacobian, detect_sparsity
 
 __all__ = ["IDAFailure", "IDASolution", "IDAStats", "dae_residual", "integrate_ida"]
@@ -200,8 +200,8 @@ def _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps):
 
 def _consistent_start(residual, x0, params, t0, ic_dt, ic_tol, scale, pattern):
     """Two implicit-Euler steps of ``ic_dt``: ``(t0 + 2 ic_dt, x2, (x2 - x1) / ic_dt, stats)``."""
-    from .integrate import integrate
-    from .saveat import SaveAt
+    from ._integrate import integrate
+    from ._saveat import SaveAt
     from .solvers import Newton
 
     sol = integrate(residual, x0, params, t0=t0, t1=t0 + 2 * ic_dt, dt=ic_dt, solver=Newton(tol=ic_tol),

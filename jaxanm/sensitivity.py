@@ -61,8 +61,10 @@ from jax.flatten_util import ravel_pytree
 
 from ._x64 import entry_point
 from .errors import InputError, StepFailure
-from .integrate import SensitivityMethod, check_run_inputs, integrate, params_float64
-from .saveat import SaveAt
+from ._integrate import integrate
+from ._run_inputs import check_run_inputs, params_float64
+from ._saveat import SaveAt
+from ._sensitivity_method import Polished, SensitivityMethod
 from .stats import Stats
 
 _FLOOR = 1e3  # a correction that stops shrinking below _FLOOR * polish_tol is at the round-off floor
@@ -315,7 +317,7 @@ class ForwardSensitivity(SensitivityMethod):
         self.stats = SensitivityStats()
         self.values, self.tangent_values, self.times = [], [], []
         self.problem = self.S_T = self.x = None
-        self._solver = self._state = None  # the step solver and its state, during after_solve
+        self._fact = self._made = None  # during after_solve: the K* in use, and the one made here (if any)
 
     def start(self, problem, t0, x0, params) -> None:
         """The run's problem; S_0 = 0 (x0 independent of theta) and the observation at t0."""
@@ -323,10 +325,11 @@ class ForwardSensitivity(SensitivityMethod):
         self.S_T = np.zeros((self.size, x0.size)) if self.tangents else None
         self.record(t0, x0, params)
 
-    def after_solve(self, solver, state, x_old, x, t, dt, step):
-        """Polish the solved (sub-)step and carry S through it: ``(x polished, |R(x)|_inf,
-        solver state)`` (with the K* refactorised if polish or refinement stalled)."""
-        self._solver, self._state = solver, state
+    def after_solve(self, factorization, x_old, x, t, dt, step) -> Polished:
+        """Polish the solved (sub-)step and carry S through it, with the solver's K*
+        ``factorization``: the polished state, ``|R(x)|_inf``, and the Jacobian factorised here
+        if polish or refinement stalled with that K* (the loop makes it the solver's K*)."""
+        self._fact, self._made = factorization, None
         tic = time.perf_counter()
         x, r_norm = self._polish(x, x_old, t, dt, step)
         toc = time.perf_counter()
@@ -334,8 +337,8 @@ class ForwardSensitivity(SensitivityMethod):
         if self.tangents:
             self.S_T = self._tangent(x, x_old, t, dt, self.S_T, step)
         self.stats.wall_time["tangent"] += time.perf_counter() - toc
-        state, self._solver, self._state = self._state, None, None
-        return x, r_norm, state
+        made, self._fact, self._made = self._made, None, None
+        return Polished(x, r_norm, made)
 
     def record(self, t, x, params) -> None:
         """The observation at an accepted step (and its tangent), by this sensitivity's own
@@ -374,13 +377,14 @@ class ForwardSensitivity(SensitivityMethod):
         return np.linalg.norm(np.atleast_2d(v) / self.problem.scale, axis=1)
 
     def _kstar(self):
-        """The step solver's factorised K*."""
-        return self._solver.factorization(self._state)
+        """The K* in use: the step solver's, or the one :meth:`_refresh` made in this step."""
+        return self._fact
 
     def _refresh(self, x, x_old, t, dt) -> None:
-        """The Jacobian at ``x`` factorised and installed as the solver's K* (counted)."""
+        """The Jacobian at ``x`` factorised, used from here on and handed to the loop as the
+        solver's next K* (counted)."""
         fact = self.problem.factorize_at(x, x_old, t, dt, self.bound_params)
-        self._state = self._solver.with_factorization(self._state, fact)
+        self._fact = self._made = fact
         self.stats.extra_factorizations += 1
 
     def _polish(self, x, x_old, t, dt, k):

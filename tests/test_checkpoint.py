@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 
 import jax.numpy as jnp
@@ -127,6 +128,24 @@ def test_failure_inside_after_step_writes_no_half_recorded_checkpoint(tmp_path):
     from jaxanm.checkpoint import read
 
     assert read(tmp_path / "c.ckpt")["k"] == 4
+
+
+def test_checkpoint_of_another_version_is_refused_naming_file_and_version(tmp_path):
+    """A run checkpoint whose layout predates this jaxanm's (version 1 had no "version" key)
+    is refused before any step, with the file and both versions named, by a resume and by
+    jaxanm.stored_host_state alike."""
+    from jaxanm._run_checkpoint import VERSION
+    from jaxanm.checkpoint import write_atomic
+
+    residual, x0, params = heat_1d(4)
+    path = tmp_path / "old.ckpt"
+    write_atomic(path, {"k": 3, "t": 0.03, "host_state": {"step": 3}})  # a version-1 layout
+    expected = f"checkpoint {path} holds a run state of version 1; this jaxanm reads version {VERSION}"
+    with pytest.raises(jaxanm.InputError, match=re.escape(expected)):
+        jaxanm.integrate(residual, x0, params, t0=0, t1=0.1, dt=0.01, solver=jaxanm.ANM(), checkpoint=path,
+                         resume=True)
+    with pytest.raises(jaxanm.InputError, match=re.escape(expected)):
+        jaxanm.stored_host_state(path)
 
 
 def test_unreadable_checkpoint_is_an_input_error(tmp_path):

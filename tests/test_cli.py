@@ -376,10 +376,11 @@ def test_interrupted_run_resumes_to_the_same_fields(resume_scene, tmp_path, monk
 
 
 def _write_checkpoint(directory: Path, scene: Scene, every=3):
+    from jaxanm._run_checkpoint import VERSION
     from jaxanm.checkpoint import write_atomic
 
-    write_atomic(directory / cli.CHECKPOINT_NAME,
-                 {"host_state": {"scene": scene.to_dict(), "settings": {"checkpoint_every": every}}})
+    host = {"scene": scene.to_dict(), "settings": {"checkpoint_every": every}}
+    write_atomic(directory / cli.CHECKPOINT_NAME, {"version": VERSION, "host_state": host})
 
 
 @pytest.mark.parametrize("extra, expected", [

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -141,6 +143,35 @@ def test_stale_kstar_is_refactorised_when_the_series_fails():
     assert sol.stats.factorizations >= 2
     ref = jaxanm.integrate(residual, x0, params, t0=0.0, t1=1.0, dt=1e-2, solver=jaxanm.Newton(tol=1e-12))
     assert np.abs(sol.xs[-1] - ref.xs[-1]).max() < 1e-5 * np.abs(ref.xs[-1]).max()
+
+
+@dataclasses.dataclass(frozen=True)
+class _AtMost(jaxanm.Newton):
+    """Newton that refuses (StepFailure) every step longer than ``h_max``: the fixed-step
+    controller's halving is then the only thing that decides the step sizes."""
+
+    h_max: float = 0.0
+
+    def step(self, state, step, x_old, t, dt, params):
+        if dt > self.h_max:
+            raise jaxanm.StepFailure(f"dt {dt} > {self.h_max}", step=step, t=t)
+        return super().step(state, step, x_old, t, dt, params)
+
+
+@pytest.mark.parametrize("controller", [None, jaxanm.ConstantStepSize()])
+def test_fixed_steps_halve_a_failed_step_into_halves_of_one_recorded_step(controller):
+    """x' = -lam x with steps of dt that the solver refuses above dt/4: each step is redone as
+    two halves, each of them as two quarters (3 halvings a step), recorded once at its end, so
+    x_k = x0 (1 + lam dt/4)^(-4k), the closed form of four implicit-Euler quarter steps."""
+    lam, dt = 3.0, 0.1
+    decay = lambda x, x_old, t, h, p: (x - x_old) / h + p["lam"] * x  # noqa: E731
+    solver = _AtMost(tol=1e-12, h_max=dt / 4 * 1.001)
+    sol = jaxanm.integrate(decay, np.ones(1), {"lam": lam}, t0=0.0, t1=0.5, dt=dt, solver=solver, controller=controller)
+    k = np.arange(6)
+    np.testing.assert_allclose(sol.ts, k * dt, rtol=0, atol=1e-15)  # t0 + k dt, rounded once
+    # Newton on a linear residual: one iteration, exact up to round-off of a few operations per step
+    np.testing.assert_allclose(sol.xs[:, 0], (1 + lam * dt / 4) ** (-4.0 * k), rtol=1e-13)
+    assert sol.stats.time_steps == 5 and sol.stats.dt_halvings == 3 * 5
 
 
 def test_failed_step_is_halved_then_reports_step_time_amax():

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanm.integrate import on_device
+from jaxanm._run_inputs import on_device
 from jaxanm._x64 import entry_point
 
 

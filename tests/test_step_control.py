@@ -1,4 +1,4 @@
-"""Adaptive implicit-Euler steps (jaxanm.step_control, integrate(controller=...)), against the
+"""Adaptive implicit-Euler steps (jaxanm.StepController, integrate(controller=...)), against the
 closed forms of the linear decay x' = -lam x.
 
 For x' = -lam x one implicit Euler step of size h from x_n gives x_n / (1 + lam h); the exact

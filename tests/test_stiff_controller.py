@@ -3,7 +3,7 @@
 K* holds the 1/dt of the time derivative, so a controller that changes dt at every step keeps
 every reused K* stale.  The controller holds the step size while its proposal is within
 ``hold`` of it, and the run drops a K* whose step size is more than ``refactor_ratio`` away
-from the next step's (jaxanm.step_control, docs/notes/adaptive_time_steps.md).  Measured here:
+from the next step's (jaxanm.StepController, docs/notes/adaptive_time_steps.md).  Measured here:
 the ANM's factorisations against modified Newton's under the same controller, and the error
 at the end of the span against the problem's reference.
 

@@ -54,11 +54,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
-from .errors import InputError
+from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
+from .errors import InputError, StepFailure
 
 
 HOLD = 1.5
@@ -68,9 +69,29 @@ REFACTOR_RATIO = 1.5
 """Default :attr:`StepController.refactor_ratio` (module docstring, "Holding the step size")."""
 
 
+MIN_STEP = 1e-12
+"""A step refused by the error test below this fraction of the span is a failure (the error
+estimate is then round-off or a discontinuity, not the time discretisation)."""
+
+
+class _Adaptive(NamedTuple):
+    """The state of :class:`StepController` between steps."""
+
+    h_next: float | None  # the size proposed for the next step (None: the run's dt)
+    history: tuple | None  # (measured state before the last step, its size); None: no estimate yet
+    time_error: np.ndarray | None  # the sum of the local error estimates of the accepted steps
+    save_times: tuple  # SaveAt.ts within (t0, t1), sorted: steps end exactly on them
+
+
 @dataclasses.dataclass(frozen=True)
-class StepController:
+class StepController(StepSizeController):
     """Adaptive step sizes for :func:`jaxanm.integrate` (``controller=StepController(...)``).
+
+    The estimate, the norm, the controller and why it holds the step size are described in
+    ``docs/notes/adaptive_time_steps.md`` (and this module's docstring).  A step whose solve
+    fails is retried from its start at a quarter of its size, at most ``max_dt_halvings``
+    times in a row; a step refused by the error test is retried at the size the controller
+    proposes.  Steps end exactly on ``SaveAt.ts`` and on ``t1``.
 
     Parameters
     ----------
@@ -170,3 +191,92 @@ class StepController:
     def clip(self, h: float) -> float:
         """``h`` within ``[dt_min, dt_max]``."""
         return min(max(h, self.dt_min), self.dt_max)
+
+    # -- the time loop's interface (jaxanm._step_size) --
+
+    def init(self, span: Span) -> _Adaptive:
+        """No proposal and no history yet; the save times steps end on."""
+        return _Adaptive(None, None, None, tuple(sorted({v for v in span.saveat.ts or () if span.t0 < v < span.t1})))
+
+    def done(self, state: _Adaptive, k: int, t: float, span: Span) -> bool:
+        """Once ``t1`` is reached."""
+        return not t < span.t1
+
+    def attempt(self, state: _Adaptive, k: int, t: float, x, params, span: Span) -> Attempt:
+        """The proposed size (the run's dt at first), the state measured for the estimate."""
+        h = state.h_next if state.h_next is not None else float(span.dt)
+        y_now = self.measured(x, params) if state.history is not None else None
+        return self._planned(state, h, t, span, 0, y_now)
+
+    def _planned(self, state: _Adaptive, h: float, t: float, span: Span, failures: int, y_now) -> Attempt:
+        """A step of about ``h`` from ``t``: it ends exactly on the next save time or on t1 when
+        it reaches it (or falls short of it by a sliver the next step could not resolve)."""
+        end = t + h
+        for target in [v for v in state.save_times if v > t][:1] + [float(span.t1)]:
+            if end >= target - MIN_STEP * (span.t1 - span.t0):
+                end = target
+                break
+        return Attempt(end, (Segment(t, end - t),), failures, (h, y_now))
+
+    def retry(self, state: _Adaptive, attempt: Attempt, failure: Exception, span: Span) -> Attempt:
+        """The step from its start at a quarter of its size (the failure raised after
+        ``max_failures`` in a row)."""
+        if attempt.failures >= span.max_failures:
+            raise failure
+        start = attempt.segments[0]
+        return self._planned(state, self.clip(start.h / 4), start.t, span, attempt.failures + 1, attempt.memo[1])
+
+    def judge(self, state: _Adaptive, attempt: Attempt, k: int, x, x_new, params, scale, span: Span) -> Verdict:
+        """The local error test (none on the first step and after a history-breaking remap);
+        refused steps are retried from x at the proposed size unless already at ``dt_min``
+        (compared before the end-point snapping, which rounds the size)."""
+        h, y_now = attempt.memo
+        start = attempt.segments[0]
+        size = start.h
+        if y_now is None:  # no earlier step to estimate with: accepted as proposed
+            state = state._replace(h_next=self.clip(h))
+        else:
+            y_before, h_prev = state.history
+            y_new = self.measured(x_new, params)
+            local = self.local_error(y_new, y_now, y_before, size, h_prev)
+            err = self.norm(local, y_new, scale)
+            if err > 1 and h > self.dt_min:
+                if size <= MIN_STEP * (span.t1 - span.t0):
+                    raise StepFailure(f"the local error test still fails (error {err:.3g} times the tolerance) "
+                                      f"at a step of {size:.3g}: give the controller a larger rtol/atol or a "
+                                      "dt_min at which to accept such steps", step=k, t=attempt.end)
+                return Verdict(state, retry=self._planned(state, self.propose(size, err), start.t, span,
+                                                          attempt.failures, y_now))
+            state = state._replace(h_next=self.next_size(size, err),
+                                   time_error=local if state.time_error is None else state.time_error + local)
+        history = (y_now if y_now is not None else self.measured(x, params), size)
+        return Verdict(state._replace(history=history), size=size)
+
+    def saved(self, state: _Adaptive, k: int, t: float, span: Span) -> bool:
+        """:meth:`jaxanm.SaveAt.controlled`."""
+        return span.saveat.controlled(k, t, span.t1)
+
+    def forget(self, state: _Adaptive) -> _Adaptive:
+        """No history: the next step is taken without an estimate."""
+        return state._replace(history=None)
+
+    def time_error(self, state: _Adaptive):
+        """The sum of the accepted steps' local error estimates (None before any)."""
+        return state.time_error
+
+    def describe(self) -> dict:
+        """The settings (``error_map`` by name: a function's repr holds its address, which
+        differs from process to process)."""
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "error_map"}
+        d["error_scale"] = None if self.error_scale is None else np.asarray(self.error_scale).tolist()
+        em = self.error_map
+        d["error_map"] = None if em is None else getattr(em, "__qualname__", type(em).__name__)
+        return d
+
+    def to_checkpoint(self, state: _Adaptive) -> dict:
+        """The proposal, the history and the error sum."""
+        return {"h_next": state.h_next, "history": state.history, "time_error": state.time_error}
+
+    def from_checkpoint(self, state: _Adaptive, stored: dict) -> _Adaptive:
+        """``state`` with the stored proposal, history and error sum."""
+        return state._replace(**stored)
