@@ -14,11 +14,12 @@ from .continuation import Branch, BranchPoints, continuation, newton_continuatio
 from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
 from .integrate import Remap, SensitivityMethod, Solution, integrate
 from .jacobian import SparseJacobian, color_columns, detect_sparsity
-from .linalg import Factorization, factorize
+from ._factorization import Factorization, factorize
 from .saveat import SaveAt
 from .sensitivity import ForwardSensitivity, Sensitivities, sensitivities, value_and_grad
 from .series import taylor_coefficients
-from .solvers import ANM, ModifiedNewton, Newton, SolverState, StepSolver, evaluate_series, validity_range
+from ._acceptance import evaluate_series, validity_range
+from ._solver import ANM, ModifiedNewton, Newton, SolverState, StepSolver, make_solver, solver_kinds
 from .stats import Stats
 from .step_control import StepController
 
@@ -52,8 +53,10 @@ __all__ = [
     "factorize",
     "float64",
     "integrate",
+    "make_solver",
     "newton_continuation",
     "sensitivities",
+    "solver_kinds",
     "taylor_coefficients",
     "validity_range",
     "value_and_grad",

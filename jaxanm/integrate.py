@@ -22,7 +22,8 @@ from .checkpoint import read, sigterm_as_interrupt, to_host, write_atomic
 from .errors import InputError, NonFiniteError, StepFailure
 from .jacobian import detect_sparsity
 from .saveat import SaveAt, fixed_steps, step_end
-from .solvers import Problem, StepSolver
+from ._problem import Problem
+from ._solver import StepSolver
 from .stats import Stats
 from .step_control import StepController
 

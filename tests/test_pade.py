@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from jaxanm import InputError, pade
-from jaxanm.solvers import evaluate_series, validity_range
+from jaxanm import evaluate_series, validity_range
 
 EPS = np.finfo(float).eps
 
