@@ -17,7 +17,7 @@ from .jacobian import SparseJacobian, color_columns, detect_sparsity
 from ._factorization import Factorization, factorize
 from .saveat import SaveAt
 from .sensitivity import ForwardSensitivity, Sensitivities, sensitivities, value_and_grad
-from .series import taylor_coefficients
+from ._series import taylor_coefficients
 from ._acceptance import evaluate_series, validity_range
 from ._solver import ANM, ModifiedNewton, Newton, SolverState, StepSolver, make_solver, solver_kinds
 from .stats import Stats

@@ -21,7 +21,7 @@ import scipy.sparse
 from ._factorization import Factorization, counted_solve, factorize
 from .errors import NonFiniteError, SingularMatrixError, StepFailure
 from .jacobian import SparseJacobian, dense_jacobian_function
-from .series import AffineFunctions, AffinePath, path_coefficients
+from ._series import AffineFunctions, AffinePath, path_coefficients
 from .stats import Stats
 
 MAX_LAYOUTS = 16
@@ -43,7 +43,7 @@ class CompiledResidual:
         self._affine = collections.OrderedDict()  # layout -> AffineFunctions or None, oldest first
 
     def affine_functions(self, d_s, args):
-        """The :class:`~jaxanm.series.AffineFunctions` of the residual for the layout of
+        """The :class:`~jaxanm._series.AffineFunctions` of the residual for the layout of
         ``(d_s, args)``, or None (with a warning, once per layout) when the split cannot be
         made; the series then comes from a jet of the whole residual."""
         leaves, tree = jax.tree_util.tree_flatten((d_s, args))
@@ -71,7 +71,7 @@ class SeriesPath:
     """The residual's Taylor coefficients along the ANM path from ``d_s``, one order per
     :meth:`next` (counted in ``stats.series_orders`` and timed as ``series``).
 
-    The affine part of the residual is applied outside jet (:class:`~jaxanm.series.AffinePath`),
+    The affine part of the residual is applied outside jet (:class:`~jaxanm._series.AffinePath`),
     and each order's jet is truncated at the terms known.
     :meth:`start_residual` evaluates ``R(d_s)`` together with the frontier values the series
     starts from, in one call.

@@ -35,7 +35,7 @@ from .integrate import jacobian_kind, on_device, params_float64
 from .jacobian import detect_sparsity
 from ._factorization import counted_solve
 from ._factorization import factorize as counted_factorize
-from .series import AffinePath
+from ._series import AffinePath
 from ._problem import Problem, compiled
 from .stats import Stats
 
@@ -281,7 +281,7 @@ class PathSeries:
     :meth:`next` is given ``U_k``, it returns ``F_(k+1)``, the coefficient of ``a^(k+1)`` of R
     along the path truncated at k (so that order k + 1 reads ``R_U U_(k+1) = -F_(k+1)``).
 
-    The jets come from :class:`~jaxanm.series.AffinePath` (affine part outside jet, one
+    The jets come from :class:`~jaxanm._series.AffinePath` (affine part outside jet, one
     compilation per rung of its ladder, shared by every step of every branch with this
     residual and shapes): with ``lookahead`` it returns the coefficient of order k + 1 along
     the path with the provisional ``U_(k+1) = U_k``, which is ``F_(k+1) + R_U U_k``; the

@@ -71,13 +71,13 @@ def test_a_pade_end_point_that_misses_is_not_accepted(monkeypatch):
     P_p(1) spoiled (1e-3 of the increment added), no series is accepted through it and every
     accepted state still solves its step."""
     residual, x0, params = bratu_1d()
-    evaluate = jaxanm.pade.evaluate
+    evaluate = jaxanm._pade.evaluate
 
     def spoiled(approx, a):
         inc = evaluate(approx, a)
         return inc + 1e-3 * np.abs(inc).max() if a == 1.0 else inc
 
-    monkeypatch.setattr(jaxanm.pade, "evaluate", spoiled)
+    monkeypatch.setattr(jaxanm._pade, "evaluate", spoiled)
     sol = _run(bratu_1d, jaxanm.ANM(order=10, tol=TOL, pade=True), 0.5)
     assert sol.stats.pade_accepted == 0
     assert newton_distance_ratio(residual, params, sol, TOL) <= CHECK_LIMIT

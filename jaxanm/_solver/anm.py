@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 
-from .. import pade as _pade
+from .. import _pade
 from .._acceptance import (CHECK_LIMIT, CRITERIA, evaluate_series, promised_accuracy, reference_state,
                            validity_range)
 from .._problem import SeriesPath
@@ -156,8 +156,8 @@ class _ANMStep(Attempt):
         """The Padé approximant of the order-p series and its validity range (searched up to
         a = 1, by this solver's tolerance and criterion): ``(approx, a_pade)``."""
         approx = _pade.approximant(coeffs, self.problem.scale)
-        a_pade = _pade.validity_range(approx, self.opts.tol, limit=1.0,
-                                      state=reference_state(self.opts.criterion, d_s))
+        a_pade = _pade.pade_validity_range(approx, self.opts.tol, limit=1.0,
+                                           state=reference_state(self.opts.criterion, d_s))
         return approx, a_pade
 
     def _validity_range(self, coeffs, d_s) -> float:

@@ -101,7 +101,8 @@ class StepSolver(abc.ABC):
         """Solve the time step ``R(x, x_old, t, dt, params) = 0`` from ``x_old``: ``(x, new state)``.
 
         The arguments are those of every solver (see the class).  ``state``'s K* is handed
-        over to the step (freed if the step replaces it), unless :meth:`retain`\\ ed.  A step
+        over to the step (freed if the step replaces it) unless it was retained
+        (:meth:`retain`).  A step
         that cannot be solved raises :class:`~jaxanm.StepFailure` (or
         :class:`~jaxanm.NonFiniteError`), with the state to retry from attached
         (:meth:`state_after_failure`) when it differs from ``state``.
