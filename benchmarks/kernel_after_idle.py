@@ -28,7 +28,7 @@ import numpy as np
 from jaxanm import mls
 from jaxanm.fsw import discretise, load_scene
 from jaxanm.fsw.geometry import build_stencils
-from jaxanm.linalg import sparse_lu
+from jaxanm._factorization import sparse_lu
 
 
 def kernel_inputs(points, n_tool, geometry, m_max):

@@ -7,7 +7,7 @@ solves (one per series order of an ANM step), as medians over ``--repeats`` roun
 variants take turns (back to back, so that the machine's load hits all alike).  Accuracy: the
 relative residual ``|A x - b|_inf / (|A|_inf |x|_inf)`` of a random right-hand side and the
 difference from the solution of SuperLU with MMD_ATA and partial pivoting (the choice before
-issue 14; :func:`jaxanm.linalg.sparse_lu` is the variant "MMD_AT_PLUS_A symmetric, pivot 0.1").
+issue 14; :func:`jaxanm._factorization.sparse_lu` is the variant "MMD_AT_PLUS_A symmetric, pivot 0.1").
 
 Variants:
 

@@ -40,9 +40,9 @@ def series_dissection(prob, x0, orders, repeats=20) -> list:
     import jax.numpy as jnp
 
     import jaxanm
-    from jaxanm.solvers import _series_function
+    from jaxanm._problem import compiled
 
-    f = _series_function(prob["residual"])
+    f = compiled(prob["residual"]).series
     rows = []
     with jaxanm.float64():
         t_, dt_ = jnp.float64(prob["t0"] + prob["dt"]), jnp.float64(prob["dt"])

@@ -143,7 +143,7 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
                                                           repeats, fresh)
     parts["  value matrix"] = median_ms(lambda _: mls.value_matrix(new_st), repeats)
     vm = mls.value_matrix(new_st)
-    parts["  splu of the value matrix"] = median_ms(lambda _: jaxanm.linalg.sparse_lu(vm), repeats)
+    parts["  splu of the value matrix"] = median_ms(lambda _: jaxanm._factorization.sparse_lu(vm), repeats)
     parts["after_step (whole hook)"] = median_ms(lambda r: r.after_step(t, x, params), repeats, fresh)
     # after a rezoning, each step also evaluates the fields at the material points (markers)
     def markers(r, targets):

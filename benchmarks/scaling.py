@@ -48,7 +48,7 @@ def measure(dr: float, repeats: int, order: int = 7) -> dict:
     import jaxanm
     from jaxanm.fsw.discretisation import discretise
     from jaxanm.fsw.scene import load_scene
-    from jaxanm.solvers import _series_function
+    from jaxanm._problem import compiled
 
     t = time.perf_counter()
     scene = load_scene("fsw_tracers").with_overrides({"geometry.dr": dr})
@@ -67,7 +67,7 @@ def measure(dr: float, repeats: int, order: int = 7) -> dict:
         np.asarray(res(x, x0, t_, dt_, params))
         out["residual_compile_s"] = time.perf_counter() - t
         out["residual_s"] = median_time(lambda: np.asarray(res(x, x0, t_, dt_, params)), repeats)
-        ser = _series_function(model.residual)
+        ser = compiled(model.residual).series
         terms = 1e-3 * model.scale() * rng.standard_normal((order - 1, n))
         t = time.perf_counter()
         np.asarray(ser(x, terms, x0, t_, dt_, params))

@@ -5,8 +5,8 @@ cold and the peak memory is that variant's), on the state after ``--warm`` Newto
 Lagrangian run (``benchmarks/profile_host_step.warm_state``):
 
 - ``ladder``: what the ANM does: one jet per order, truncated at the terms known, up to
-  ``jaxanm.series.EXACT_TERMS`` terms, and beyond that jets padded with zero terms to the next
-  rung of a geometric ladder, capped at p - 1 (``jaxanm.series.jet_length``);
+  ``jaxanm._series.EXACT_TERMS`` terms, and beyond that jets padded with zero terms to the next
+  rung of a geometric ladder, capped at p - 1 (``jaxanm._series.jet_length``);
 - ``exact``: one jet per order at every order (what the ANM did from 2026-12-02 until the
   ladder; the same as ``ladder`` up to EXACT_TERMS).
   (The zero-padded single jet the fixed-order ANM used before is no longer in the
@@ -17,7 +17,7 @@ calls of one series.
 
 both for the convex homotopy (the residual's coefficient ``[R]_{j-1}`` at order j) and the
 Newton homotopy (``[R]_j`` with the provisional ``c_j = c_{j-1}``, one more term), with the
-affine part of the residual outside jet (``jaxanm.series.AffinePath``).  The path coefficients
+affine part of the residual outside jet (``jaxanm._series.AffinePath``).  The path coefficients
 are random (scaled like the unknowns): the cost does not depend on their values.  Times are
 medians over ``--repeats`` series; ``os.getloadavg()`` is recorded beside them.
 
@@ -47,9 +47,9 @@ def measure(order: int, mode: str, homotopy: str, repeats: int, warm: int) -> di
     import profile_host_step
 
     import jaxanm
-    from jaxanm import series as series_module
-    from jaxanm.series import AffinePath
-    from jaxanm.solvers import _affine_functions
+    from jaxanm import _series as series_module
+    from jaxanm._problem import compiled
+    from jaxanm._series import AffinePath
 
     if mode == "exact":
         series_module.EXACT_TERMS = 10**6
@@ -61,7 +61,7 @@ def measure(order: int, mode: str, homotopy: str, repeats: int, warm: int) -> di
         rng = np.random.default_rng(0)
         cs = [1e-4 * model.scale() * rng.standard_normal(x.size) for _ in range(order - 1)]
         t0 = time.perf_counter()
-        fns = _affine_functions(model.residual, x, args)
+        fns = compiled(model.residual).affine_functions(x, args)
         def series():
             path = AffinePath(fns, x, args, lookahead=lookahead, max_terms=order - 1)
             for c in cs:
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
         order, mode, homotopy = a.one.split(",")
         print(json.dumps(measure(int(order), mode, homotopy, a.repeats, a.warm)))
         return 0
-    from jaxanm.series import EXACT_TERMS
+    from jaxanm._series import EXACT_TERMS
 
     rows = []
     for order in (int(p) for p in a.orders.split(",")):

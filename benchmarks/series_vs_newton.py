@@ -10,7 +10,7 @@ step k + 1 exactly (Newton with fresh Jacobians to 1e-13), and measures the true
 - modified Newton with that K* (``x_{k+1} = x_k - K*^-1 R(x_k)``);
 - the ANM series of the paper's convex homotopy and of the Newton homotopy
   (``docs/notes/anm_homotopy.md``), summed at a = 1 to order j (j solves);
-- the Padé approximant of each series at a = 1 (``jaxanm.pade``, order j >= 3);
+- the Padé approximant of each series at a = 1 (``jaxanm._pade``, order j >= 3);
 
 for the run's (stale) K* and for a fresh K* (the tangent at the step's start).  It also counts
 the solves each method's own acceptance uses at ``--tol`` (modified Newton: until
@@ -37,12 +37,14 @@ import numpy as np
 
 import jaxanm
 from jaxanm import checkpoint as ckpt
-from jaxanm import pade
+from jaxanm import _pade as pade
 from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run
-from jaxanm.linalg import Factorization
-from jaxanm.solvers import ANM, Problem, SeriesPath, _ANMStep
+from jaxanm import Factorization
+from jaxanm import ANM
+from jaxanm._problem import Problem, SeriesPath
+from jaxanm._solver.anm import _ANMStep
 
 EXACT_TOL = 1e-13
 """The reference x* of a step: full Newton until the relative correction is below this."""
@@ -92,7 +94,7 @@ def anm_acceptance(P: Problem, fact, coeffs, d_s, args, tol: float):
     """(solves, accepted state) of the order-adaptive ANM with the "state" criterion: the first
     order j >= 2 whose a_max reaches 1 and whose end point passes the end-point check (one more
     residual and solve each time it is tried), by the stepper's own acceptance
-    (``jaxanm.solvers._ANMStep``); None if no order up to ``len(coeffs)`` passes."""
+    (``jaxanm._solver.anm._ANMStep``); None if no order up to ``len(coeffs)`` passes."""
     attempt = _ANMStep(ANM(order=coeffs.shape[0], tol=tol, criterion="state", adaptive=True), P, fact)
     checks = P.stats.residual_evaluations  # each end-point check evaluates one residual
     for j in range(2, coeffs.shape[0] + 1):

@@ -20,10 +20,11 @@ from ._saveat import SaveAt
 from ._sensitivity_method import SensitivityMethod
 from ._step_control import StepController
 from .jacobian import SparseJacobian, color_columns, detect_sparsity
-from .linalg import Factorization, factorize
+from ._factorization import Factorization, factorize
 from .sensitivity import ForwardSensitivity, Sensitivities, sensitivities, value_and_grad
-from .series import taylor_coefficients
-from .solvers import ANM, ModifiedNewton, Newton, SolverState, StepSolver, evaluate_series, validity_range
+from ._series import taylor_coefficients
+from ._acceptance import evaluate_series, validity_range
+from ._solver import ANM, ModifiedNewton, Newton, SolverState, StepSolver, make_solver, solver_kinds
 from .stats import Stats
 
 __all__ = [
@@ -57,8 +58,10 @@ __all__ = [
     "factorize",
     "float64",
     "integrate",
+    "make_solver",
     "newton_continuation",
     "sensitivities",
+    "solver_kinds",
     "stored_host_state",
     "taylor_coefficients",
     "validity_range",

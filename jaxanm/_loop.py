@@ -20,7 +20,7 @@ The loop owns the run's record, a :class:`~jaxanm._loop_state.LoopState` it repl
 change, and is the one place that counts its own work in the run's :class:`~jaxanm.Stats`:
 ``time_steps``, ``residual_norm``, ``step_sizes``, ``dt_halvings``, ``rejected_steps``,
 ``resumes`` and ``wall_time_s`` (:class:`_Tally`).  The solver's counters and timers are the
-:class:`~jaxanm.solvers.Problem`'s.
+:class:`~jaxanm._problem.Problem`'s.
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ from ._sensitivity_method import SensitivityMethod
 from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
 from .checkpoint import sigterm_as_interrupt
 from .errors import NonFiniteError, StepFailure
-from .solvers import Problem, StepSolver
+from ._problem import Problem
+from ._solver import StepSolver
 from .stats import Stats
 
 

@@ -18,7 +18,7 @@ from ._sensitivity_method import SensitivityMethod
 from ._step_size import StepSizeController
 from .errors import InputError
 from .jacobian import detect_sparsity
-from .solvers import StepSolver
+from ._solver import StepSolver
 
 AUTO_SPARSE_SIZE = 400
 """Above this many unknowns ``jacobian="auto"`` picks the sparse Jacobian."""

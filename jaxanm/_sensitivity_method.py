@@ -9,8 +9,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .linalg import Factorization
-from .solvers import Problem
+from ._factorization import Factorization
+from ._problem import Problem
 
 
 class Polished(NamedTuple):

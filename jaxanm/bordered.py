@@ -8,7 +8,7 @@ Path following (:mod:`jaxanm.continuation`) sees n equations in the n + 1 unknow
 
 (R_u by ``jax.jacfwd`` or the coloured :class:`~jaxanm.SparseJacobian`, R_lam by a ``jvp``,
 ``w`` a border row), through the one counted factorisation of the project
-(:func:`jaxanm.linalg.factorize`, or a hook).  B stays regular at limit points, where R_u is
+(:func:`jaxanm.factorize`, or a hook).  B stays regular at limit points, where R_u is
 singular, as long as ``w`` is not orthogonal to the branch's tangent.  Its kernel vector
 ``z = B^-1 e_(n+1)`` spans the tangent (``R_U z = 0``, ``w.z = 1``), so any constraint
 ``<v, dU> = c`` is imposed afterwards on a solution of B by adding a multiple of ``z``:
@@ -33,10 +33,10 @@ import scipy.sparse
 from .errors import InputError, SingularMatrixError, StepFailure, _number
 from ._run_inputs import jacobian_kind, on_device, params_float64
 from .jacobian import detect_sparsity
-from .linalg import Factorization
-from .linalg import factorize as counted_factorize
-from .series import AffinePath
-from .solvers import Problem, _affine_functions, _residual_function, _series_function
+from ._factorization import Factorization, counted_solve
+from ._factorization import factorize as counted_factorize
+from ._problem import Problem, compiled
+from ._series import AffinePath
 from .stats import Stats
 
 START_ITERATIONS = 20
@@ -65,7 +65,7 @@ def joint_function(residual):
 @functools.lru_cache(maxsize=64)
 def _step_form(residual):
     """The residual in the step solvers' signature ``(x, x_old, t, dt, params)``, lam in ``t``:
-    :class:`~jaxanm.solvers.Problem` then builds R_u (dense or sparse) as it does for K*."""
+    :class:`~jaxanm._problem.Problem` then builds R_u (dense or sparse) as it does for K*."""
     return lambda x, x_old, t, dt, params: residual(x, t, params)
 
 
@@ -169,18 +169,18 @@ def _check_output(residual, u0, lam0, params):
 class Linearisation:
     """The bordered matrix factorised at ``point`` (border row ``row``), with the residual
     there (``residual``), the top block ``[R_u, R_lam]`` for products (``jacobian``, ``dlam``)
-    and the kernel vector ``z`` (``B z = e_(n+1)``)."""
+    and the kernel vector ``z`` (``B z = e_(n+1)``); its solves are counted in ``stats``."""
 
-    def __init__(self, point, residual, jacobian, dlam, row, fact):
+    def __init__(self, point, residual, jacobian, dlam, row, fact, stats: Stats):
         self.point, self.residual, self.jacobian, self.dlam, self.row = point, residual, jacobian, dlam, row
-        self.fact = fact
+        self.fact, self.stats = fact, stats
         last = np.zeros(point.size)
         last[-1] = 1.0
-        self.z = np.asarray(fact.solve(last))
+        self.z = np.asarray(counted_solve(fact, last, stats))
 
     def solve(self, top, last: float = 0.0) -> np.ndarray:
         """``B^-1 [top; last]``."""
-        return np.asarray(self.fact.solve(np.append(top, last)))
+        return np.asarray(counted_solve(self.fact, np.append(top, last), self.stats))
 
     def constrained(self, top, v, value: float = 0.0) -> np.ndarray:
         """The solution ``x`` of ``R_U x = top`` with ``v . x = value`` (``v`` a row, e.g. a
@@ -196,7 +196,7 @@ class Linearisation:
 class ExtendedSystem:
     """``R(U) = 0`` for ``U = (u, lam)``: residuals, linearisations (bordered, factorised,
     counted in ``stats``) and the series of the residual along a path.  ``factorize``: the
-    hook ``(matrix, stats) -> object with solve(rhs)`` (default :func:`jaxanm.linalg.factorize`)."""
+    hook ``(matrix, stats) -> object with solve(rhs)`` (default :func:`jaxanm.factorize`)."""
 
     def __init__(self, residual, U0, params, scale, jacobian: str, sparsity, stats: Stats, factorize=None):
         n = U0.size - 1
@@ -241,7 +241,7 @@ class ExtendedSystem:
     def residual(self, U) -> np.ndarray:
         """``R(u, lam)`` on the host (counted)."""
         with self.stats.timer("series"):
-            r = np.asarray(_residual_function(self._residual)(U[:-1], np.float64(U[-1]), self.params))
+            r = np.asarray(compiled(self._residual).residual(U[:-1], np.float64(U[-1]), self.params))
         self.stats.residual_evaluations += 1
         return r
 
@@ -264,7 +264,7 @@ class ExtendedSystem:
         except SingularMatrixError as exc:
             raise ContinuationFailure(f"bordered matrix cannot be factorised ({exc})", step=step, lam=U[-1],
                                       residual_norm=r_norm) from exc
-        return Linearisation(U, r, jac, dlam, row, self._fact)
+        return Linearisation(U, r, jac, dlam, row, self._fact, st)
 
     def path(self, point, max_terms: int) -> "PathSeries":
         """The residual's series along a path from ``point`` (:class:`PathSeries`)."""
@@ -285,7 +285,7 @@ class PathSeries:
     :meth:`next` is given ``U_k``, it returns ``F_(k+1)``, the coefficient of ``a^(k+1)`` of R
     along the path truncated at k (so that order k + 1 reads ``R_U U_(k+1) = -F_(k+1)``).
 
-    The jets come from :class:`~jaxanm.series.AffinePath` (affine part outside jet, one
+    The jets come from :class:`~jaxanm._series.AffinePath` (affine part outside jet, one
     compilation per rung of its ladder, shared by every step of every branch with this
     residual and shapes): with ``lookahead`` it returns the coefficient of order k + 1 along
     the path with the provisional ``U_(k+1) = U_k``, which is ``F_(k+1) + R_U U_k``; the
@@ -300,9 +300,9 @@ class PathSeries:
         joint = joint_function(system._residual)
         args = (system.params,)
         with system.stats.timer("series"):
-            fns = _affine_functions(joint, point, args)
+            fns = compiled(joint).affine_functions(point, args)
             self._path = None if fns is None else AffinePath(fns, point, args, lookahead=True, max_terms=max_terms)
-        self._whole = _series_function(joint)  # used without a split; compiled on first use only
+        self._whole = compiled(joint).series  # used without a split; compiled on first use only
 
     def next(self, U_k, linearisation: Linearisation) -> np.ndarray:
         """``F_(k+1)`` from the new coefficient ``U_k`` (counted in ``stats.series_orders``)."""

@@ -23,7 +23,7 @@ import numpy as np
 from ._x64 import entry_point
 from .bordered import ContinuationFailure, ExtendedSystem, Linearisation, check_inputs, corrected_start
 from .errors import InputError
-from .solvers import CHECK_LIMIT, CHECK_ROUND_OFF, evaluate_series, validity_range
+from ._acceptance import CHECK_LIMIT, CHECK_ROUND_OFF, evaluate_series, validity_range
 from .stats import Stats
 
 MAX_HALVINGS = 10
@@ -292,13 +292,13 @@ def continuation(residual: Callable, u0, lam0, params=None, *, lam_end=None, sto
         that errors do not build up along the branch.  Its size (``Branch.correction``) is the
         end point's distance from the branch, checked in any case: above ``CHECK_LIMIT`` times
         what eq. 26 promised there (``tol a``, round-off floor ``CHECK_ROUND_OFF |U|``;
-        :mod:`jaxanm.solvers`) the step is halved (same series, no factorisation; counted in
+        :class:`jaxanm.ANM`) the step is halved (same series, no factorisation; counted in
         ``stats.rejected_steps``), at most ``MAX_HALVINGS`` times.
     keep_series : bool
         Keep each step's series, ``(steps, order, n+1)`` floats, in the :class:`Branch`.
     factorize : callable ``(matrix, stats) -> object with solve(rhs)``, optional
         How the bordered matrix (dense array or scipy CSC, (n+1, n+1)) is factorised; default
-        :func:`jaxanm.linalg.factorize`.  The series needs solves with the exact tangent at
+        :func:`jaxanm.factorize`.  The series needs solves with the exact tangent at
         each step's start: a hook that reuses factors across steps must iterate to that
         accuracy (e.g. GMRES preconditioned by an earlier LU) and count what it does in
         ``stats``.  An object with ``release()`` has it called before the next factorisation.

@@ -202,7 +202,7 @@ def _consistent_start(residual, x0, params, t0, ic_dt, ic_tol, scale, pattern):
     """Two implicit-Euler steps of ``ic_dt``: ``(t0 + 2 ic_dt, x2, (x2 - x1) / ic_dt, stats)``."""
     from ._integrate import integrate
     from ._saveat import SaveAt
-    from .solvers import Newton
+    from ._solver import Newton
 
     sol = integrate(residual, x0, params, t0=t0, t1=t0 + 2 * ic_dt, dt=ic_dt, solver=Newton(tol=ic_tol),
                     scale=scale, jacobian="sparse", sparsity=pattern, saveat=SaveAt(steps=1))

@@ -10,7 +10,7 @@ of colours stays within the same padded bucket.
 
 Most of a meshless residual is linear maps of the unknowns (stencil sums) feeding pointwise
 nonlinear terms, and the seeded ``jvp`` spends its time in the stencil sums.  Through the
-affine frontier of :mod:`jaxanm.affine` the chain rule splits it: ``J S = J_rest(F(x)) (A S)``
+affine frontier of :mod:`jaxanm._affine` the chain rule splits it: ``J S = J_rest(F(x)) (A S)``
 with ``A`` the frontier's linear map, which does not depend on ``x``.  ``A S`` (one ``jvp`` of
 the linear part per colour) depends only on the arguments the linear map reads, the stencil
 weights of a fixed cloud, so :class:`SparseJacobian` keeps it while those stay the same
@@ -29,7 +29,7 @@ import scipy.sparse
 from jax.extend import core as jex_core
 
 from ._x64 import entry_point
-from .affine import split_affine
+from ._affine import split_affine
 
 _COLOR_BUCKET = 16  # colours are padded to a multiple of this: fewer recompiles
 # Device memory one seeded jvp of a meshless residual holds, per nonzero of the Jacobian: its

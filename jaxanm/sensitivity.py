@@ -393,7 +393,7 @@ class ForwardSensitivity(SensitivityMethod):
         previous, refreshed = np.inf, False
         for _ in range(self.max_polish):
             r = P.residual(x, x_old, t, dt, self.bound_params)
-            dx = -self._kstar().solve(r)
+            dx = -self.problem.solve(self._kstar(), r)
             size, ref = self._scaled_norms(dx)[0], max(self._scaled_norms(x)[0], np.finfo(float).tiny)
             if not np.isfinite(size):
                 raise StepFailure("polish correction is not finite", step=k, t=float(t))
@@ -420,11 +420,11 @@ class ForwardSensitivity(SensitivityMethod):
         """Refinement ``S <- S + K*^-1 (b - J S)`` for the P columns at once."""
         args = (x, x_old, t, dt, self.params, self.theta_j)
         b = -np.asarray(self.step_rhs(*args, S_old_T, self.basis))
-        S_T = self._kstar().solve(b.T).T
+        S_T = self.problem.solve(self._kstar(), b.T).T
         rels, refreshed = [], False
         for _ in range(self.max_refine):
             res = b - np.asarray(self.jac_x(*args, S_T))
-            dS_T = self._kstar().solve(res.T).T
+            dS_T = self.problem.solve(self._kstar(), res.T).T
             self.stats.refine_iterations += 1
             rel = float(np.max(self._scaled_norms(dS_T) / np.maximum(self._scaled_norms(S_T), np.finfo(float).tiny)))
             if not np.isfinite(rel):
@@ -441,7 +441,7 @@ class ForwardSensitivity(SensitivityMethod):
                                       step=k, t=float(t))
                 self._refresh(x, x_old, t, dt)
                 refreshed, rels = True, []
-                S_T = self._kstar().solve(b.T).T
+                S_T = self.problem.solve(self._kstar(), b.T).T
         raise StepFailure(f"sensitivity refinement did not converge in {self.max_refine} sweeps (last {rel:.3g})",
                           step=k, t=float(t))
 

@@ -1,4 +1,4 @@
-"""The affine split of a residual (jaxanm.affine) and the series built on it (series.AffinePath).
+"""The affine split of a residual (jaxanm._affine) and the series built on it (series.AffinePath).
 
 References: the function itself (the split must reproduce it exactly, up to the order of the
 same floating-point operations) and ``taylor_coefficients``, a jet of the whole function,
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import jaxanm
-from jaxanm.affine import split_affine
-from jaxanm.series import EXACT_TERMS, AffineFunctions, AffinePath, jet_length, taylor_coefficients
+from jaxanm._affine import split_affine
+from jaxanm._series import EXACT_TERMS, AffineFunctions, AffinePath, jet_length, taylor_coefficients
 
 N, M = 30, 5
 RNG = np.random.default_rng(7)

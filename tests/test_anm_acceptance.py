@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 import jaxanm
-import jaxanm.solvers
+import jaxanm._problem
+import jaxanm._solver.anm
 from model_problems import heat_1d, impulsive_cubic
 
 CHECK_LIMIT = 10.0
@@ -57,7 +58,7 @@ def test_the_series_from_rest_has_vanishing_last_coefficients():
     """The premise: from u = 0 with a fresh K*, c_2 and c_3 vanish, so eq. 26 sees no last term."""
     residual, x0, params = cubic_reaction_diffusion()
     p, tol, dt = 4, 1e-6, 0.1
-    problem = jaxanm.solvers.Problem(residual, np.ones(x0.size), jaxanm.Stats(), "dense", None)
+    problem = jaxanm._problem.Problem(residual, np.ones(x0.size), jaxanm.Stats(), "dense", None)
     with jaxanm.float64():
         args = (x0, jnp.float64(dt), jnp.float64(dt), params)
         fact = problem.factorize_at(x0, *args)
@@ -121,7 +122,7 @@ def test_the_check_costs_no_factorisation_where_the_series_is_fine(make, solver,
     kw = dict(t0=0.0, t1=t1, dt=1e-2, solver=solver)
     checked = jaxanm.integrate(residual, x0, params, **kw)
     # the solver as it was before the check: every series with a_max >= 1 accepted unseen
-    monkeypatch.setattr(jaxanm.solvers._ANMStep, "_end_point_check",
+    monkeypatch.setattr(jaxanm._solver.anm._ANMStep, "_end_point_check",
                         lambda self, *args: (0.0, 0.0, None))
     unchecked = jaxanm.integrate(residual, x0, params, **kw)
     a, b = checked.stats, unchecked.stats

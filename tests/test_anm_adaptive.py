@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import jaxanm
-from jaxanm.series import taylor_coefficients
+from jaxanm import taylor_coefficients
 from test_anm_acceptance import CHECK_LIMIT, cubic_reaction_diffusion, newton_distance_ratio
 
 

@@ -9,7 +9,7 @@ and values are known without the solver:
 - Newton homotopy, stale K* = k: ``R(d) = (1 - a) [R(s) + (K_T - k)(d - s)]``.
 
 The series are built by the stepper's own recursion (``c_j = c_{j-1} - K*^-1 [R]_j``) from
-:class:`jaxanm.solvers.SeriesPath`, so these tests check the lookahead coefficients that jet
+:class:`jaxanm._problem.SeriesPath`, so these tests check the lookahead coefficients that jet
 returns, the recursion and the homotopy together.
 """
 
@@ -20,7 +20,8 @@ import pytest
 from scipy.special import binom
 
 import jaxanm
-from jaxanm.solvers import Problem, SeriesPath, evaluate_series
+from jaxanm import evaluate_series
+from jaxanm._problem import Problem, SeriesPath
 from test_anm_acceptance import CHECK_LIMIT, cubic_reaction_diffusion, newton_distance_ratio
 
 B, S = 0.6, 1.0

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import jaxanm
-import jaxanm.solvers
+import jaxanm._solver.anm
 from model_problems import bratu_1d, heat_1d
 from test_anm_acceptance import CHECK_LIMIT, newton_distance_ratio
 
@@ -71,13 +71,13 @@ def test_a_pade_end_point_that_misses_is_not_accepted(monkeypatch):
     P_p(1) spoiled (1e-3 of the increment added), no series is accepted through it and every
     accepted state still solves its step."""
     residual, x0, params = bratu_1d()
-    evaluate = jaxanm.pade.evaluate
+    evaluate = jaxanm._pade.evaluate
 
     def spoiled(approx, a):
         inc = evaluate(approx, a)
         return inc + 1e-3 * np.abs(inc).max() if a == 1.0 else inc
 
-    monkeypatch.setattr(jaxanm.pade, "evaluate", spoiled)
+    monkeypatch.setattr(jaxanm._pade, "evaluate", spoiled)
     sol = _run(bratu_1d, jaxanm.ANM(order=10, tol=TOL, pade=True), 0.5)
     assert sol.stats.pade_accepted == 0
     assert newton_distance_ratio(residual, params, sol, TOL) <= CHECK_LIMIT
@@ -86,13 +86,13 @@ def test_a_pade_end_point_that_misses_is_not_accepted(monkeypatch):
 def test_adaptive_tries_pade_at_the_maximum_order_only(monkeypatch):
     """With ``adaptive`` the approximant is built for order-p series only (ANM docstring)."""
     calls = []
-    pade_range = jaxanm.solvers._ANMStep._pade_range
+    pade_range = jaxanm._solver.anm._ANMStep._pade_range
 
     def recorded(self, coeffs, d_s):
         calls.append(coeffs.shape[0])
         return pade_range(self, coeffs, d_s)
 
-    monkeypatch.setattr(jaxanm.solvers._ANMStep, "_pade_range", recorded)
+    monkeypatch.setattr(jaxanm._solver.anm._ANMStep, "_pade_range", recorded)
     sol = _run(bratu_1d, jaxanm.ANM(order=10, tol=TOL, adaptive=True, pade=True), 0.5)
     assert calls and set(calls) == {10} and sol.stats.pade_accepted >= 1
     assert min(sol.stats.orders) < 10  # the lower orders still stop early where the series suffices

@@ -12,7 +12,7 @@ Two problems with known branches and limit points:
   :func:`truss_load`.
 
 Jets are compiled once per residual and shape and per rung of the series' length ladder
-(:mod:`jaxanm.series`): the branches are built once per module (fixtures) and the series order
+(:mod:`jaxanm._series`): the branches are built once per module (fixtures) and the series order
 is 8 (rungs 2..8), which keeps the file's compilation to a few seconds; the default order 15
 adds two longer rungs and changes nothing tested here (its agreement is the benchmark's,
 ``benchmarks/continuation.py``).

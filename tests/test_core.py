@@ -11,7 +11,7 @@ import pytest
 import scipy.sparse
 
 import jaxanm
-from jaxanm.solvers import evaluate_series
+from jaxanm import evaluate_series
 from model_problems import heat_1d, impulsive_cubic
 
 
@@ -54,7 +54,7 @@ def test_tighter_anm_tolerance_gets_closer_to_the_exact_step_solution():
     assert 1 < runs[0].stats.factorizations < runs[1].stats.factorizations  # different series
     errs = [np.abs(run.xs - ref).max() for run in runs]
     for err, tol in zip(errs, (1e-8, 1e-10)):
-        assert err <= jaxanm.solvers.CHECK_LIMIT * tol * path
+        assert err <= jaxanm._acceptance.CHECK_LIMIT * tol * path
     # The claim itself compares two errors, which no bound orders; the margin is 7e4 (2.9e-10
     # against 3.9e-15).  The loose run's error is a truncation error, not round-off: its worst
     # step (the 5th) is accepted at a_max = 1.01, where eq. 26 leaves a last term of about
@@ -77,7 +77,7 @@ def test_series_reproduces_exact_homotopy_path_within_amax():
     def residual(d, d_old, t, dt, params):
         return d**2 - b
 
-    problem = jaxanm.solvers.Problem(residual, np.ones(1), jaxanm.Stats(), "dense", None)
+    problem = jaxanm._problem.Problem(residual, np.ones(1), jaxanm.Stats(), "dense", None)
     with jaxanm.float64():
         args = (np.zeros(1), jnp.float64(1.0), jnp.float64(1.0), None)
         fact = jaxanm.factorize(np.array([[k]]), problem.stats)
@@ -357,7 +357,7 @@ def test_sparse_lu_solves_in_both_orderings(limit, dominant, monkeypatch):
     # above: both must solve a non-symmetric sparse matrix to backward-stable accuracy, for one
     # or several right-hand sides, also where every pivot has to leave the diagonal (the large
     # entries on a cyclic shift, the diagonal only random fill)
-    from jaxanm import linalg
+    from jaxanm import _factorization as linalg
 
     monkeypatch.setattr(linalg, "SYMMETRIC_MAX_UNKNOWNS", limit)
     n = 60

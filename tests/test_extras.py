@@ -96,7 +96,7 @@ def test_ida_sweep_task_without_scikit_sundae_fails_before_running(monkeypatch, 
 
 
 def test_large_lu_without_pymetis_names_the_extra(monkeypatch):
-    from jaxanm import linalg
+    from jaxanm import _factorization as linalg
 
     _hide(monkeypatch, "pymetis")
     n = linalg.SYMMETRIC_MAX_UNKNOWNS + 1

@@ -1,9 +1,10 @@
 """Lifetime of the LU factors: a solver frees a K* it replaces before making the next one.
 
-At dr/4 one LU takes about 0.8 GB; two alive at a refactorisation (the stale K*, held by the
-state the step started from, and the new one) doubled the peak memory of a long run
-(docs/notes/sparse_lu_at_scale.md).  The state keeps the matrix, so a released K* still
-solves, by factorising it again.
+On fine clouds one LU takes most of a run's memory; two alive at a refactorisation (the stale
+K*, held by the state the step started from, and the new one) doubled the peak memory of a
+long run (docs/notes/sparse_lu_at_scale.md).  The rule (:class:`jaxanm.StepSolver`): a state
+passed to ``step`` hands its K* over, unless the caller retained it; the state keeps the
+matrix, so a released K* still solves, by factorising it again (counted).
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ import pytest
 import scipy.sparse
 
 import jaxanm
-from jaxanm import linalg
+from jaxanm import _factorization as linalg
+from jaxanm._problem import Problem
 from jaxanm.stats import Stats
 from model_problems import heat_1d, impulsive_cubic
 
@@ -27,11 +29,11 @@ def test_a_released_factorization_solves_by_factorising_again():
     b = rng.standard_normal(40)
     stats = Stats()
     fact = linalg.factorize(a, stats)
-    before = fact.solve(b)
+    before = linalg.counted_solve(fact, b, stats)
     fact.release()
-    assert stats.factorizations == 1
-    after = fact.solve(b)
-    assert np.array_equal(before, after)
+    assert stats.factorizations == 1 and fact.released
+    after = linalg.counted_solve(fact, b, stats)
+    assert np.array_equal(before, after) and not fact.released
     assert stats.factorizations == 2 and stats.solves == 2
 
 
@@ -63,8 +65,8 @@ def test_at_most_one_lu_alive(problem, solver, monkeypatch):
 
     init = linalg.Factorization.__init__
 
-    def register(self, matrix, stats=None):
-        init(self, matrix, stats)
+    def register(self, matrix):
+        init(self, matrix)
         made.append(self)
 
     monkeypatch.setattr(linalg.Factorization, "_factors", staticmethod(counting))
@@ -73,3 +75,44 @@ def test_at_most_one_lu_alive(problem, solver, monkeypatch):
     sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=1.0 if problem is not impulsive_cubic else 0.05,
                            dt=1e-2, solver=solver)
     assert sol.stats.factorizations == len(made) >= 2
+
+
+def _stale_kstar_start():
+    """A state of the ANM on ``_source_jump`` whose K* goes stale at the next step (the source
+    jumps), and that step's arguments."""
+    residual, x0, params = _source_jump()
+    solver = jaxanm.ANM(order=5, tol=1e-8)
+    problem = Problem(residual, np.ones(x0.size), Stats(), "dense", None)
+    dt = np.float64(0.01)
+    with jaxanm.float64():
+        x1, state = solver.step(solver.init(problem), 1, x0, np.float64(0.5), dt, params)
+    assert state.factorization is not None
+    return solver, problem, state, (2, x1, np.float64(0.51), dt, params)
+
+
+def test_a_step_frees_the_kstar_handed_over_to_it():
+    """The documented hand-over: stepping from a state whose K* goes stale frees that K* before
+    the new one is made (the time loop's case: one LU alive)."""
+    solver, problem, state, args = _stale_kstar_start()
+    old = state.factorization
+    with jaxanm.float64():
+        _, after = solver.step(state, *args)
+    assert after.factorization is not old and old.released and not after.factorization.released
+
+
+def test_a_retained_state_keeps_its_kstar_and_steps_again_identically():
+    """A retained K* is never freed: two steps from the same retained state make the same
+    factorisations (none made again for a released K*) and the same state, bit for bit."""
+    solver, problem, state, args = _stale_kstar_start()
+    kept = solver.retain(state)
+    assert kept is state
+    results = []
+    for _ in range(2):
+        before = problem.stats.factorizations
+        with jaxanm.float64():
+            x, after = solver.step(kept, *args)
+        assert not state.factorization.released
+        results.append((x, problem.stats.factorizations - before, after.factorization))
+    (x_a, made_a, fact_a), (x_b, made_b, fact_b) = results
+    assert np.array_equal(x_a, x_b) and made_a == made_b >= 1  # the stale K* was replaced both times
+    assert fact_a is not state.factorization and fact_b is not fact_a

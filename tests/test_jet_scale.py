@@ -1,4 +1,4 @@
-"""jaxanm.jet_scale: a product by a constant that jet propagates as linear.
+"""jaxanm._jet_scale: a product by a constant that jet propagates as linear.
 
 Reference: jet's own bilinear and quotient rules on the same operations (which add only exact
 zeros to the same products), and ``lax.mul``/``lax.div`` for values and derivatives.
@@ -13,7 +13,7 @@ import pytest
 from jax.experimental import jet
 
 import jaxanm
-from jaxanm.jet_scale import scale
+from jaxanm._jet_scale import scale
 
 RNG = np.random.default_rng(3)
 X0 = RNG.uniform(0.5, 1.5, 7)

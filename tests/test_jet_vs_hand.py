@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxanm.series import taylor_coefficients
+from jaxanm import taylor_coefficients
 
 ORDER = 15
 RTOL = 1e-10

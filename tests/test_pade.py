@@ -1,4 +1,4 @@
-"""Padé approximants of the ANM series (jaxanm.pade) against closed forms.
+"""Padé approximants of the ANM series (jaxanm._pade) against closed forms.
 
 The series are Taylor series of known functions: rational ones, whose common-denominator
 Padé approximant is exact, and square roots with branch points at a = -R_j (radius min R_j),
@@ -11,8 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxanm import InputError, pade
-from jaxanm.solvers import evaluate_series, validity_range
+from jaxanm import InputError
+from jaxanm import _pade as pade
+from jaxanm import evaluate_series, validity_range
 
 EPS = np.finfo(float).eps
 
@@ -56,7 +57,7 @@ def test_rational_series_with_a_pole_before_one_is_reproduced_exactly_but_truste
     assert relative(pade.evaluate(approx, 1.0), v / (1 - 1 / R) - v) < 2 * (1 / R) ** (p - 2) * p * EPS
     assert relative(evaluate_series(c, 1.0), v / (1 - 1 / R) - v) > 1  # the truncated series is useless
     assert pade.first_pole(approx) == pytest.approx(R, rel=1e-14)
-    a_pade = pade.validity_range(approx, tol, limit=4.0)
+    a_pade = pade.pade_validity_range(approx, tol, limit=4.0)
     assert validity_range(c, 1.0, tol) < a_pade < R  # beyond eq. 26, never past the pole
     assert a_pade == pytest.approx(R * 2 ** (-1 / pade.GRID_PER_OCTAVE))  # the last scanned point before it
 
@@ -72,7 +73,7 @@ def test_rational_series_with_a_pole_behind_reaches_past_the_series_radius(v):
     c = geometric(v, R, p, sign=-1.0)
     approx = pade.approximant(c, 1.0)
     assert pade.first_pole(approx) == np.inf
-    assert pade.validity_range(approx, tol, limit=4.0) == 4.0
+    assert pade.pade_validity_range(approx, tol, limit=4.0) == 4.0
     for a in (1.0, 4.0):
         assert relative(pade.evaluate(approx, a), v / (1 + a / R) - v) < 2 * (a / R) ** (p - 2) * p * EPS
     assert validity_range(c, 1.0, tol) < R
@@ -88,7 +89,7 @@ def test_pade_extends_the_range_of_a_series_with_a_known_radius(p):
     Rs, tol = np.geomspace(0.5, 4.0, 40), 1e-6
     c = sqrt_series(Rs, p)
     approx = pade.approximant(c, 1.0)
-    a_series, a_pade = validity_range(c, 1.0, tol), pade.validity_range(approx, tol)
+    a_series, a_pade = validity_range(c, 1.0, tol), pade.pade_validity_range(approx, tol)
     # 1.5 states "well beyond"; it is not derived.  On any CPU it holds for a derived reason:
     # a_series is closed form, and a_pade is the first scan point where |P_p - P_{p-1}| exceeds
     # tol |P_p - u_0|.  On the scan grid below 1.5 a_series that ratio is at most 2.9e-8 (p = 7;
@@ -142,8 +143,8 @@ def test_invariant_under_unit_scaling_and_change_of_variable(v):
         np.testing.assert_allclose(pade.evaluate(moved, a / lam), pade.evaluate(base, a), rtol=1e-13, atol=0)
     unit = pade.approximant(c / v, 1.0)
     np.testing.assert_allclose(pade.evaluate(base, 0.9), v * pade.evaluate(unit, 0.9), rtol=1e-13, atol=0)
-    assert pade.validity_range(moved, 1e-6, limit=1.0 / lam) == pytest.approx(
-        pade.validity_range(base, 1e-6, limit=1.0) / lam, rel=1e-12)
+    assert pade.pade_validity_range(moved, 1e-6, limit=1.0 / lam) == pytest.approx(
+        pade.pade_validity_range(base, 1e-6, limit=1.0) / lam, rel=1e-12)
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -160,7 +161,7 @@ def test_validity_range_never_reaches_a_pole(seed):
         c = rng.standard_normal((p, n)) * rng.uniform(0.2, 5.0) ** np.arange(p)[:, None]
     approx = pade.approximant(c, 1.0)
     pole = pade.first_pole(approx)
-    a_pade = pade.validity_range(approx, 1e-4, limit=10.0)
+    a_pade = pade.pade_validity_range(approx, 1e-4, limit=10.0)
     assert a_pade < pole
     if seed == 0:
         assert pole == pytest.approx(0.3, rel=1e-3)
@@ -176,9 +177,9 @@ def test_exactly_vanishing_higher_coefficients_give_the_polynomial(v):
     approx = pade.approximant(c, 1.0)
     for a in (0.5, 3.0):
         np.testing.assert_allclose(pade.evaluate(approx, a), evaluate_series(c, a), rtol=1e-14, atol=1e-14)
-    assert pade.first_pole(approx) == np.inf and pade.validity_range(approx, 1e-8, limit=5.0) == 5.0
+    assert pade.first_pole(approx) == np.inf and pade.pade_validity_range(approx, 1e-8, limit=5.0) == 5.0
     zero = pade.approximant(np.zeros((4, 3)), 1.0)
-    assert not np.any(pade.evaluate(zero, 2.0)) and pade.validity_range(zero, 1e-6, limit=2.0) == 2.0
+    assert not np.any(pade.evaluate(zero, 2.0)) and pade.pade_validity_range(zero, 1e-6, limit=2.0) == 2.0
 
 
 def test_parity_zeros_are_not_fitted():
@@ -204,7 +205,7 @@ def test_order_two_is_exact_for_a_geometric_series_but_never_trusted(v):
     c = geometric(v, 0.5, 2, sign=-1.0)
     approx = pade.approximant(c, 1.0)
     assert relative(pade.evaluate(approx, 1.0), v / 3.0 - v) < 1e-14
-    assert pade.validity_range(approx, 1e-6) == 0.0
+    assert pade.pade_validity_range(approx, 1e-6) == 0.0
 
 
 def test_bad_input_names_the_problem():
@@ -218,6 +219,6 @@ def test_bad_input_names_the_problem():
         pade.approximant(np.ones((3, 2)), np.array([1.0, 0.0]))
     approx = pade.approximant(np.ones((3, 2)), 1.0)
     with pytest.raises(InputError, match="tol"):
-        pade.validity_range(approx, -1.0)
+        pade.pade_validity_range(approx, -1.0)
     with pytest.raises(InputError, match="limit"):
-        pade.validity_range(approx, 1e-6, limit=np.inf)
+        pade.pade_validity_range(approx, 1e-6, limit=np.inf)

@@ -19,12 +19,12 @@ import json
 import pytest
 
 import jaxanm
-import jaxanm.solvers
+import jaxanm._problem
 from jaxanm.checkpoint import read
 from model_problems import impulsive_cubic
 
 STRICT = jaxanm.ANM(order=4, tol=1e-8, max_substeps=2)
-FACTORIZE = jaxanm.solvers.factorize
+FACTORIZE = jaxanm._problem.factorize
 COUNTERS = [f.name for f in dataclasses.fields(jaxanm.Stats) if f.name not in ("wall_time_s", "wall_time")]
 
 
@@ -65,14 +65,14 @@ def test_an_interruption_inside_a_step_reports_the_work_of_that_step(monkeypatch
     and the checkpoint's are those the same run had at that moment when not interrupted
     (24 factorisations, and the halvings and sub-steps of the failed attempts so far)."""
     watch = _Factorizations(stop=25)
-    monkeypatch.setattr(jaxanm.solvers, "factorize", watch)
+    monkeypatch.setattr(jaxanm._problem, "factorize", watch)
     with pytest.raises(_Seen):
         _run(max_dt_halvings=30)
     at_25 = watch.seen
     assert at_25["factorizations"] == 24 and at_25["time_steps"] == 0
     assert at_25["dt_halvings"] > 0 and at_25["substeps"] > 0  # the test sees all three kinds of work
 
-    monkeypatch.setattr(jaxanm.solvers, "factorize", _Factorizations(stop=25, interrupt=True))
+    monkeypatch.setattr(jaxanm._problem, "factorize", _Factorizations(stop=25, interrupt=True))
     path = tmp_path / "run.ckpt"
     with pytest.raises(KeyboardInterrupt) as info:
         _run(max_dt_halvings=30, checkpoint=path)
@@ -87,7 +87,7 @@ def test_a_failed_run_reports_the_work_of_its_failed_step(monkeypatch, controlle
     at a quarter of the size) reports every factorisation made (counted outside Stats), the
     two halvings and the sub-steps of the three failed attempts (2 each: ``max_substeps``)."""
     watch = _Factorizations()
-    monkeypatch.setattr(jaxanm.solvers, "factorize", watch)
+    monkeypatch.setattr(jaxanm._problem, "factorize", watch)
     with pytest.raises(jaxanm.StepFailure) as info:
         _run(max_dt_halvings=2, controller=controller)
     stats = info.value.stats
@@ -109,7 +109,7 @@ def test_an_fsw_run_interrupted_in_its_first_step_writes_its_work_to_the_summary
 
     path = tmp_path / "tiny.toml"
     path.write_text(RESUME_TOML)
-    monkeypatch.setattr(jaxanm.solvers, "factorize", _Factorizations(stop=3, interrupt=True))
+    monkeypatch.setattr(jaxanm._problem, "factorize", _Factorizations(stop=3, interrupt=True))
     assert cli.main(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 130
     stats = json.loads((tmp_path / "out" / "summary.json").read_text())["stats"]
     assert stats["factorizations"] == 2 and stats["time_steps"] == 0 and stats["wall_time_s"] > 0

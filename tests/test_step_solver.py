@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import jaxanm
-from jaxanm.solvers import Problem
+from jaxanm._problem import Problem
 from model_problems import heat_1d, impulsive_cubic
 
 
@@ -84,15 +84,72 @@ def test_a_failed_step_hands_back_the_factorisation_it_made():
     assert start.factorization is None
 
 
-def test_solves_count_and_time_themselves():
+def test_the_problem_counts_and_times_solves_and_the_factorization_does_not():
+    """Counting belongs to the caller's stats: a :class:`jaxanm.Factorization` only factors
+    and solves; :class:`Problem` counts one solve per right-hand side."""
     stats = jaxanm.Stats()
+    problem = Problem(lambda x, *_: x, np.ones(2), stats, "dense", None)
     fact = jaxanm.factorize(np.array([[2.0, 1.0], [0.0, 4.0]]), stats)
-    x = fact.solve(np.array([3.0, 4.0]))
-    X = fact.solve(np.ones((2, 3)))
-    np.testing.assert_allclose(x, [1.0, 1.0])
+    x = problem.solve(fact, np.array([3.0, 4.0]))
+    X = problem.solve(fact, np.ones((2, 3)))
+    np.testing.assert_allclose(x, [1.0, 1.0])  # closed form of the triangular system
     np.testing.assert_allclose(X, np.tile([[0.375], [0.25]], 3))
     assert stats.solves == 4 and stats.factorizations == 1 and stats.wall_time["solve"] > 0
-    assert jaxanm.Factorization(np.eye(2)).solve(np.ones(2)).tolist() == [1.0, 1.0]  # no stats: not counted
+    assert jaxanm.Factorization(np.eye(2)).solve(np.ones(2)).tolist() == [1.0, 1.0]
+    assert stats.solves == 4  # a bare solve is nobody's to count
     residual, x0, params = heat_1d(8)
     sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=0.1, dt=0.01, solver=jaxanm.Newton(tol=1e-8))
     assert sol.stats.solves == sol.stats.newton_iterations > 0
+
+
+def test_every_module_of_the_solver_package_is_imported_with_it():
+    """Dropping a file into jaxanm/_solver/ is enough: the package imports all its modules."""
+    import pkgutil
+    import sys
+
+    import jaxanm._solver as package
+    names = [m.name for m in pkgutil.iter_modules(package.__path__)]
+    assert {"base", "anm", "newton"} <= set(names)
+    assert all(f"jaxanm._solver.{name}" in sys.modules for name in names)
+    assert jaxanm.solver_kinds() == ("anm", "mnewton", "newton")
+
+
+def test_a_solver_that_declares_a_kind_is_registered_and_made_by_name(monkeypatch):
+    from jaxanm._solver import base
+    monkeypatch.setattr(base, "_KINDS", dict(base._KINDS))  # the class below leaves with the test
+
+    @dataclasses.dataclass(frozen=True)
+    class Chord(FixedPointNewton):
+        kind = "chord"
+
+    assert "chord" in jaxanm.solver_kinds()
+    made = jaxanm.make_solver("chord", tol=1e-9)
+    assert type(made) is Chord and made.tol == 1e-9
+    with pytest.raises(TypeError, match="already"):
+        type("Other", (FixedPointNewton,), {"kind": "anm"})
+
+
+def test_make_solver_refuses_an_unknown_kind_or_option_naming_what_it_knows():
+    with pytest.raises(jaxanm.InputError, match="'rk4'.*anm, mnewton, newton"):
+        jaxanm.make_solver("rk4")
+    with pytest.raises(jaxanm.InputError, match="'order'.*tol, max_iter"):
+        jaxanm.make_solver("newton", order=5)
+    assert jaxanm.make_solver("mnewton", max_rate=0.3) == jaxanm.ModifiedNewton(max_rate=0.3)
+
+
+@pytest.mark.parametrize("kind, options, message", [
+    ("anm", {"order": 1}, "ANM.order must be an integer >= 2"),
+    ("anm", {"tol": 0.0}, r"ANM.tol must be a float in \(0, 1\)"),
+    ("anm", {"max_substeps": -1}, "ANM.max_substeps must be an integer >= 0"),
+    ("anm", {"criterion": "size"}, "ANM.criterion must be 'increment'"),
+    ("anm", {"homotopy": "arc"}, "ANM.homotopy must be 'convex'"),
+    ("anm", {"adaptive": "yes"}, "ANM.adaptive must be True or False"),
+    ("newton", {"max_iter": 0}, "Newton.max_iter must be an integer >= 1"),
+    ("newton", {"tol": 1.5}, r"Newton.tol must be a float in \(0, 1\)"),
+    ("mnewton", {"max_rate": 1.0}, r"ModifiedNewton.max_rate must be a float in \(0, 1\)"),
+    ("mnewton", {"max_rate": "0.5"}, r"ModifiedNewton.max_rate must be a float in \(0, 1\)"),
+    ("mnewton", {"max_iter": 2.5}, "ModifiedNewton.max_iter must be an integer >= 1"),
+])
+def test_each_solver_validates_its_own_options(kind, options, message):
+    with pytest.raises(jaxanm.InputError, match=message):
+        jaxanm.make_solver(kind, **options)

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse
 
 from .. import mls
-from ..linalg import sparse_lu
+from .._factorization import sparse_lu
 from .geometry import Cloud, build_cloud, build_stencils, rigid
 from .physics import CONSTANTS, Effects, complete_fields, mu_reference, residual_for
 from .scene import Scene

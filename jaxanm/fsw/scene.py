@@ -28,7 +28,7 @@ import tomllib
 from pathlib import Path
 
 from ..errors import InputError
-from ..solvers import ANM, ModifiedNewton, Newton
+from .._solver import ANM, ModifiedNewton, Newton
 
 __all__ = [
     "EDGE_ROWS",

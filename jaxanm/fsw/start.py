@@ -41,8 +41,8 @@ import numpy as np
 from .._x64 import entry_point
 from ..continuation import continuation
 from ..errors import StepFailure
-from ..linalg import factorize
-from ..solvers import Problem, _relative_change
+from .._factorization import factorize
+from .._problem import Problem, _relative_change
 from ..stats import Stats
 from .discretisation import Model, make_model
 

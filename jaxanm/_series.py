@@ -86,7 +86,7 @@ def jet_length(terms: int, max_terms: int | None = None) -> int:
 
 class AffinePath:
     """Taylor coefficients of ``f(x(a), *args)`` along ``x(a) = x0 + sum_k a^k c_k``, one order at
-    a time, with the affine part of ``f`` applied outside ``jet`` (:mod:`jaxanm.affine`).
+    a time, with the affine part of ``f`` applied outside ``jet`` (:mod:`jaxanm._affine`).
 
     The frontier values (stencil sums and the like, affine in x) have coefficients ``A c_k``:
     one linear map (a ``jax.jvp`` of the affine part) per new ``c_k``, computed once and kept
@@ -143,7 +143,7 @@ class AffineFunctions:
     """
 
     def __init__(self, fun: Callable, x0, *args):
-        from .affine import split_affine
+        from ._affine import split_affine
 
         self.split = split = split_affine(fun, x0, *args)
 

@@ -1,9 +1,10 @@
-"""The host boundary: the only place where tangent matrices are factorised (and counted).
+"""Host LU factorisations of tangent matrices: :class:`Factorization` factors and solves.
 
 A solver receives a :class:`Factorization` ("a factorised K*") and applies it as often as it
-likes; factorising is what the ANM saves, so every factorisation goes through
-:func:`factorize`, which counts it in the run's :class:`~jaxanm.stats.Stats`, and every solve
-with its factors counts and times itself there.
+likes.  Factorising is what the ANM saves, so the callers count it: :func:`factorize` and
+:func:`counted_solve` time and count in a run's :class:`~jaxanm.stats.Stats` (the
+step solvers' problem goes through them); the object itself keeps no
+statistics.
 """
 
 from __future__ import annotations
@@ -20,37 +21,19 @@ from .errors import SingularMatrixError
 from .stats import Stats
 
 
-# SuperLU's column ordering and pivoting.  The fsw_paper tangent (2643 unknowns, 198 693
-# non-zeros, MLS stencils) has a structurally symmetric pattern, and its diagonal entries make
-# acceptable pivots: minimum degree on A + A^T in symmetric mode, which takes the diagonal
-# pivot unless it is below 0.1 of its column's largest entry (threshold partial pivoting, as
-# UMFPACK's default), gives 0.91e6 non-zeros in L + U against 1.13e6 for MMD_ATA with partial
-# pivoting, factorises in 38 ms against 88 ms and solves 7 right-hand sides in 4.3 ms against
-# 6.4 ms, with the same relative residual (3.5e-20 against 3.3e-20).  COLAMD: 1.89e6, 195 ms;
-# MMD_AT_PLUS_A with partial pivoting: 2.0e6 (its pivots leave the diagonal), 160 ms; KLU and
-# MKL's PARDISO (PyPI wheels): 124 and 70 ms (PARDISO's 7 solves 38 ms); a reverse
-# Cuthill-McKee renumbering of the points gains at most 1-2 ms more (benchmarks/results/lu_orderings.md,
-# medians back to back).  The MLS value matrix of the Lagrangian refit
-# factorises faster too (0.93e5 non-zeros against 1.21e5).  An exactly singular factor raises.
-#
-# On finer clouds the symmetric mode loses: the eliminated diagonals fall below the threshold
-# and every pivot taken off the diagonal spoils the symmetric ordering.  fsw_tracers near rest
-# (docs/notes/sparse_lu_at_scale.md), non-zeros of L + U, symmetric mode against MMD_ATA:
-# 1.27e6 / 1.22e6 at dr (2643 unknowns), 15.8e6 / 8.7e6 at dr/2 (10 107), 246e6 / 58e6 and
-# 918 s / 9 s at dr/4 (39 519).  So the symmetric mode is used up to SYMMETRIC_MAX_UNKNOWNS,
-# between the sizes where it was measured to win and to lose, and a nested-dissection ordering
-# above (below).
-#
-# Nested dissection is the standard fill-reducing ordering for matrices of 2D meshes (fill
-# O(N log N), factorisation O(N^1.5), against minimum degree's worse growth), and a point cloud
-# with MLS stencils is one.  METIS (pymetis wheel) orders the graph of A + A^T; SuperLU then
-# factorises the symmetrically permuted matrix in symmetric mode, keeping the diagonal pivot
-# unless it is below LARGE_DIAG_PIVOT_THRESH of its column.  fsw_tracers near rest and
-# fsw_paper's first tangent, non-zeros of L + U (docs/notes/sparse_lu_at_scale.md):
-# dr/2: 6.8e6 against 8.7e6 for MMD_ATA with partial pivoting; dr/4: 48.5e6 / 50.8e6 against
-# 58.1e6 / 57.3e6.  Threshold 0.01 (HSL MA57's default): 0.1 keeps more diagonal pivots off
-# and fills more than MMD_ATA (71e6 at dr/4), 0.001 fills least (35e6) but its relative
-# residuals grow to 1e-15 (1e-16 at 0.01, 1e-18 with partial pivoting): element growth.
+# Why these SuperLU settings (the measurements: benchmarks/results/lu_orderings.md and
+# docs/notes/sparse_lu_at_scale.md).  The FSW tangents have a structurally symmetric pattern
+# whose diagonal entries make acceptable pivots, so minimum degree on A + A^T in symmetric mode,
+# keeping the diagonal pivot unless it is below DIAG_PIVOT_THRESH of its column (threshold
+# partial pivoting, as UMFPACK's default), fills least and factorises fastest of SuperLU's
+# orderings there, with residuals as small as partial pivoting's; an exactly singular factor
+# raises.  On finer clouds the eliminated diagonals fall below the threshold and each pivot
+# taken off the diagonal spoils the symmetric ordering, so above SYMMETRIC_MAX_UNKNOWNS (between
+# the sizes where symmetric mode was measured to win and to lose) the unknowns are ordered by
+# nested dissection, the standard fill-reducing ordering of 2D meshes (a point cloud with MLS
+# stencils is one): METIS orders the graph of A + A^T and SuperLU factorises the permuted matrix
+# in symmetric mode with the smaller threshold LARGE_DIAG_PIVOT_THRESH (HSL MA57's default: a
+# larger one keeps fewer diagonal pivots and fills more, a smaller one lets the elements grow).
 SYMMETRIC_MAX_UNKNOWNS = 5000
 PERMC_SPEC = "MMD_AT_PLUS_A"
 DIAG_PIVOT_THRESH = 0.1
@@ -81,7 +64,7 @@ def nested_dissection(matrix) -> np.ndarray:
     graph.setdiag(0)
     graph.eliminate_zeros()
     # METIS_NodeND: row i of the permuted matrix is row perm[i] of the original (its iperm,
-    # the other array returned, is the inverse: gathering by it fills 12x more at dr/2)
+    # the other array returned, is the inverse: gathering by it fills far more)
     perm, _ = pymetis.nested_dissection(pymetis.CSRAdjacency(graph.indptr, graph.indices))
     return np.asarray(perm, dtype=np.int64)
 
@@ -101,8 +84,7 @@ class NestedDissectionLU:
     @property
     def L(self):
         """The unit lower-triangular factor of ``P A P^T`` (made on each access, as SuperLU's:
-        kept, a copy doubled the memory of the factors, about 0.6 GB for the 48e6 non-zeros
-        at dr/4)."""
+        kept, a copy would double the memory of the factors)."""
         return self._lu.L
 
     @property
@@ -121,12 +103,13 @@ class NestedDissectionLU:
 class Factorization:
     """LU factors of a square matrix: ``splu`` for sparse input, ``lu_factor`` for dense.
 
-    With ``stats`` (a run's :class:`~jaxanm.stats.Stats`) every :meth:`solve` is timed there
-    as ``solve`` and counted in ``stats.solves``; making the factors is not counted here
-    (:func:`factorize` counts it), but making them again after :meth:`release` is.
+    It factors and solves, nothing else: the caller counts and times (:func:`factorize`,
+    :func:`counted_solve`).  The matrix is kept, so that a checkpoint, or a solve after
+    :meth:`release`, re-creates these exact factors.  A matrix with non-finite entries, or an
+    exactly singular one, raises :class:`~jaxanm.SingularMatrixError`.
     """
 
-    def __init__(self, matrix, stats: Stats | None = None):
+    def __init__(self, matrix):
         if scipy.sparse.issparse(matrix):
             matrix = scipy.sparse.csc_matrix(matrix, dtype=np.float64)
             if not np.all(np.isfinite(matrix.data)):
@@ -135,9 +118,8 @@ class Factorization:
             matrix = np.asarray(matrix, dtype=np.float64)
             if not np.all(np.isfinite(matrix)):
                 raise SingularMatrixError("tangent matrix has non-finite entries")
-        self.matrix = matrix  # kept so that a checkpoint (or a released one) can re-create these exact factors
+        self.matrix = matrix
         self.shape = matrix.shape
-        self.stats = stats
         self._solve = self._factors(matrix)
 
     @staticmethod
@@ -158,42 +140,53 @@ class Factorization:
             raise SingularMatrixError("dense LU: matrix is exactly singular")
         return lambda b: scipy.linalg.lu_solve(lu_piv, b, check_finite=False)
 
+    @property
+    def released(self) -> bool:
+        """Whether the factors were freed (:meth:`release`); a solve then factorises again."""
+        return self._solve is None
+
     def release(self) -> None:
         """Free the factors, keeping the matrix.
 
-        A solver that replaces this K* calls it before factorising the next one, so that two
-        LUs are never alive at once (at dr/4 each takes about 0.8 GB).  It may still be held
-        elsewhere (the state a step started from, which a user may step from again): a later
-        :meth:`solve` then factorises the same matrix again, to the same factors, and counts
-        that factorisation in ``stats``.
+        Whoever owns this K* calls it before factorising the next one, so that two LUs are
+        never alive at once (on fine clouds one takes most of a run's memory); who owns it is
+        the rule of :class:`~jaxanm.StepSolver`.  A later :meth:`solve` factorises the same
+        matrix again, to the same factors (:func:`counted_solve` counts that factorisation).
         """
         self._solve = None
 
+    def refactor(self) -> None:
+        """Make the factors again from the kept matrix if they were released (else nothing)."""
+        if self._solve is None:
+            self._solve = self._factors(self.matrix)
+
     def solve(self, rhs) -> np.ndarray:
         """Solve ``K* x = rhs`` with the stored factors (host, float64); ``rhs`` of shape (n,)
-        or (n, k), counted as 1 or k solves."""
+        or (n, k)."""
         rhs = np.asarray(rhs, dtype=np.float64)
-        if self._solve is None:  # released: factorise again (counted, as any factorisation)
-            self._solve = _counted(self.stats, lambda: self._factors(self.matrix))
-        if self.stats is None:
-            return self._solve(rhs)
-        with self.stats.timer("solve"):
-            x = self._solve(rhs)
-        self.stats.solves += 1 if rhs.ndim == 1 else rhs.shape[1]
-        return x
+        self.refactor()
+        return self._solve(rhs)
 
 
-def _counted(stats: Stats | None, make):
-    """``make()``, a factorisation, timed as ``factorize`` and counted in ``stats`` if given."""
-    if stats is None:
-        return make()
+def factorize(matrix, stats: Stats) -> Factorization:
+    """Factorise ``matrix`` on the host, timed as ``factorize`` and counted in
+    ``stats.factorizations``."""
     with stats.timer("factorize"):
-        made = make()
+        made = Factorization(matrix)
     stats.factorizations += 1
     return made
 
 
-def factorize(matrix, stats: Stats) -> Factorization:
-    """Factorise ``matrix`` on the host, counting and timing it in ``stats`` (where its
-    solves are then counted and timed too)."""
-    return _counted(stats, lambda: Factorization(matrix, stats))
+def counted_solve(fact, rhs, stats: Stats) -> np.ndarray:
+    """``fact.solve(rhs)`` timed as ``solve`` and counted in ``stats.solves`` (1 per column of
+    ``rhs``); a released :class:`Factorization` is factorised again first, timed and counted
+    as a factorisation.  ``fact``: any object with ``solve(rhs)`` (a factorisation hook's)."""
+    rhs = np.asarray(rhs, dtype=np.float64)
+    if getattr(fact, "released", False):
+        with stats.timer("factorize"):
+            fact.refactor()
+        stats.factorizations += 1
+    with stats.timer("solve"):
+        x = fact.solve(rhs)
+    stats.solves += 1 if rhs.ndim == 1 else rhs.shape[1]
+    return x

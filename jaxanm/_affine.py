@@ -26,7 +26,7 @@ import jax
 from jax import lax
 from jax.extend import core as jex_core
 
-from .jet_scale import scale
+from ._jet_scale import scale
 
 # Linear in all operands jointly (jet's own ``deflinear`` list, restricted to real arithmetic).
 _LINEAR = {lax.neg_p, lax.add_p, lax.sub_p, lax.convert_element_type_p, lax.broadcast_in_dim_p,
@@ -142,10 +142,10 @@ def _frontier(jaxpr, kinds, affine) -> list:
 
 def _evaluate(env: dict, eqns, scaled: dict) -> None:
     """Bind ``eqns`` in order on the values in ``env`` (variable -> value), adding their outputs;
-    the ``scaled`` ones through :func:`jaxanm.jet_scale.scale`."""
+    the ``scaled`` ones through :func:`jaxanm._jet_scale.scale`."""
     for eqn in eqns:
         vals = [v.val if isinstance(v, jex_core.Literal) else env[v] for v in eqn.invars]
-        if id(eqn) in scaled:  # a constant factor: linear for jet (jaxanm.jet_scale)
+        if id(eqn) in scaled:  # a constant factor: linear for jet (jaxanm._jet_scale)
             i = scaled[id(eqn)]
             out = scale(vals[i], vals[1 - i], eqn.primitive.name)
         else:

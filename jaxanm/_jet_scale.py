@@ -5,14 +5,14 @@ zeros for them (``jax/experimental/jet.py``, ``JetTrace.process_primitive``: "TO
 avoid always instantiating zeros").  A constant ``c`` times a series of K terms then goes
 through the bilinear rule, ``v_k = sum_{j<=k} u_j w_{k-j}``: (K+1)(K+2)/2 products, all but
 K+1 of them with a zero.  In the FSW residual's pointwise part (what the ANM jets, after
-:mod:`jaxanm.affine` took the stencil maps out) about two products in three have a constant
+:mod:`jaxanm._affine` took the stencil maps out) about two products in three have a constant
 operand (material constants, row scalings, ``0.5 *`` of the strain rate), so they are most of
 the jet's work and of its compiled size.
 
 :data:`scale_p` computes ``x * c`` or ``x / c`` exactly like ``lax.mul`` / ``lax.div``, and its
 jet rule applies the same operation to each term: K+1 operations instead of (K+1)(K+2)/2, and
 the same values (the bilinear and quotient rules only add exact zeros to these products, for
-finite operands).  :func:`jaxanm.affine.split_affine` binds it in place of ``mul``/``div``
+finite operands).  :func:`jaxanm._affine.split_affine` binds it in place of ``mul``/``div``
 wherever one operand of a non-affine operation is independent of ``x``.
 """
 

@@ -1,7 +1,7 @@
 """Padé approximants of the ANM series with a common denominator (host side, numpy).
 
 The ANM series of one step, ``u(a) = u_0 + sum_{i=1}^p a^i c_i`` (``coeffs[i-1] = c_i``, as in
-:mod:`jaxanm.solvers`), is replaced by the vector rational fraction of Cochelin, Damil and
+:mod:`jaxanm._solver.anm`), is replaced by the vector rational fraction of Cochelin, Damil and
 Potier-Ferry (Cochelin, Damil and Potier-Ferry 1994, "Asymptotic-numerical methods and Padé
 approximants for non-linear elastic structures", Int. J. Numer. Meth. Eng. 37; Elhage-Hussein,
 Potier-Ferry and Damil 2000, "A numerical continuation method based on Padé approximants",
@@ -52,7 +52,7 @@ with the approximant ``P_{p-1}`` built the same way from ``c_1 .. c_{p-1}``,
 
 the analogue of the series' eq. 26 (last term against the first-order increment).  ``a_pade``
 is the first a > 0 where this fails, searched up to ``limit`` and never past the smallest
-positive real root of either denominator (:func:`first_pole`): see :func:`validity_range`.
+positive real root of either denominator (:func:`first_pole`): see :func:`pade_validity_range`.
 For p = 2, ``P_1 = u_0`` and the criterion fails at every a > 0: ``a_pade = 0``.
 """
 
@@ -246,7 +246,7 @@ def _ratios(approx: PadeApproximant, a, state_norm: float) -> np.ndarray:
     return np.where(np.isfinite(ratio), ratio, np.inf)
 
 
-def validity_range(approx: PadeApproximant, tol: float, limit: float = 1.0, state=None) -> float:
+def pade_validity_range(approx: PadeApproximant, tol: float, limit: float = 1.0, state=None) -> float:
     """a_pade: the largest a up to which ``P_p`` is trusted, ``0 <= a_pade <= limit``.
 
     The criterion ``|P_p(a) - P_{p-1}(a)| <= tol |P_p(a) - u_0|`` (with ``state`` the series'

@@ -1,0 +1,67 @@
+"""When an ANM series is accepted: its validity range (eq. 26), its sum, and the end-point check.
+
+Shared by the ANM step solver and the ANM path following (:func:`jaxanm.continuation`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+CHECK_LIMIT = 10.0
+"""An accepted series' end point may miss the accuracy eq. 26 promised (``tol |c_1|``, or
+``tol |d_s|`` for ``criterion="state"``) by at most this factor in its Newton distance
+``|K*^-1 R(d_end)|`` (a series whose a_max is just above 1 has a tail beyond order p of a few
+times ``|c_p|``; ``benchmarks/hard_cases.py`` uses the same limit for its independent check)."""
+
+CHECK_ROUND_OFF = 1e-12
+"""Floor of the promised accuracy, relative to the end point: once the increment ``c_1`` of a
+(quasi-)steady step is below round-off, ``tol |c_1|`` is below what double precision resolves."""
+
+CRITERIA = ("increment", "state")
+"""What the ANM's ``tol`` is relative to (see :class:`jaxanm.ANM`)."""
+
+
+def reference_state(criterion: str, d_s):
+    """The state a criterion measures the series against: ``d_s`` for ``"state"``, else None
+    (``"increment"``: the first coefficient alone, the paper's eq. 26)."""
+    return d_s if criterion == "state" else None
+
+
+def validity_range(coeffs: np.ndarray, scale, tol: float, state=None) -> float:
+    """a_max of eq. 26: ``(tol ||c_1|| / ||c_p||)^(1/(p-1))`` on the scaled unknowns.
+
+    With ``state`` (the series' starting point d_s), the larger of eq. 26 and the range where
+    the last term stays below ``tol`` relative to the state, ``(tol ||d_s|| / ||c_p||)^(1/p)``
+    (the criterion of :class:`~jaxanm.ANM` with ``criterion="state"``).
+    ``inf`` when the last coefficient vanishes (the series is exact); ``0`` when the first does
+    not but a coefficient is non-finite.
+    """
+    p = coeffs.shape[0]
+    n1 = np.linalg.norm(coeffs[0] / scale)
+    npp = np.linalg.norm(coeffs[-1] / scale)
+    if not (np.isfinite(n1) and np.isfinite(npp)):
+        return 0.0
+    if npp == 0.0:
+        return np.inf
+    amax = float((tol * n1 / npp) ** (1.0 / (p - 1)))
+    if state is not None:
+        amax = max(amax, float((tol * np.linalg.norm(state / scale) / npp) ** (1.0 / p)))
+    return amax
+
+
+def evaluate_series(coeffs: np.ndarray, a: float) -> np.ndarray:
+    """``sum_j a^j c_j`` by Horner's rule (``coeffs[j-1] = c_j``)."""
+    acc = np.zeros_like(coeffs[0])
+    for c in coeffs[::-1]:
+        acc = (acc + c) * a
+    return acc
+
+
+def promised_accuracy(norm, tol: float, c_1, d_end, state=None) -> float:
+    """What an accepted series promised of its end point ``d_end``, in the scaled ``norm``:
+    ``tol |c_1|`` (with ``state``: at least ``tol |state|``), floored at
+    :data:`CHECK_ROUND_OFF` ``|d_end|`` and the smallest positive double."""
+    promised = tol * norm(c_1)
+    if state is not None:
+        promised = max(promised, tol * norm(state))
+    return max(promised, CHECK_ROUND_OFF * norm(d_end), np.finfo(float).tiny)

@@ -1,0 +1,273 @@
+"""The Asymptotic Numerical Method as a step solver: homotopy, Taylor series by jet, continuation.
+
+The method, its acceptance test and its homotopies are explained in ``docs/method/``
+(index, acceptance, homotopies, pade); :class:`ANM` documents the options precisely.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .. import _pade
+from .._acceptance import (CHECK_LIMIT, CRITERIA, evaluate_series, promised_accuracy, reference_state,
+                           validity_range)
+from .._problem import SeriesPath
+from ..errors import InputError, NonFiniteError, StepFailure
+from .base import Attempt, AttemptSolver, check_count, check_flag, check_tol
+
+
+class _ANMStep(Attempt):
+    """One time step of the :class:`ANM` (``opts``): series, continuation sub-steps, acceptance.
+
+    ``fact`` is the K* it works with: the state's, replaced (:meth:`drop_factorization`: the
+    next series factorises at its start point) when a series from a stale K* falls short.
+    """
+
+    opts: "ANM"
+
+    def run(self, step: int, x_old, t, dt, params):
+        """The accepted state and the residual there (None when not evaluated): ``(x, R(x))``."""
+        P, p, st = self.problem, self.opts.order, self.problem.stats
+        args = (x_old, t, dt, params)
+        d_s = np.array(x_old, dtype=np.float64)
+        fresh = False
+        substeps = 0
+        amax = None  # of the previous series in this step (reported if a later one fails)
+        r_next = None  # R at the next series' start when already known (a sub-step to a checked end point)
+        while True:
+            # the residual coefficient that order j needs depends on c_1 .. c_{j-1} only (and, for
+            # the Newton homotopy, on the provisional c_j = c_{j-1}): each jet is truncated there
+            path = SeriesPath(P, d_s, args, lookahead=self.opts.homotopy == "newton", max_terms=p - 1)
+            r0 = path.start_residual() if r_next is None else r_next
+            r_next = None
+            r0_norm = float(np.max(np.abs(r0)))
+            if not np.isfinite(r0_norm):
+                raise NonFiniteError("residual at the start of the series is not finite", step=step, t=t,
+                                     amax=amax, residual_norm=r0_norm)
+            if self.fact is None:
+                self.fact = P.factorize_in_step(step, d_s, *args, amax=amax, residual_norm=r0_norm)
+                fresh = True
+            coeffs, accepted = self._series(path, r0, d_s, args)
+            if accepted is not None:
+                return accepted
+            amax = self._validity_range(coeffs, d_s)
+            if amax >= 1.0:
+                d_end = d_s + coeffs.sum(axis=0)
+                check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], *args)
+                if check <= CHECK_LIMIT:
+                    return self._accepted(d_end, amax, p, r_end)
+                # the series claimed a = 1 but its end point is not converged (e.g. a last
+                # coefficient that vanishes by parity): not an accepted step
+                if not fresh:  # stale K*: refactorise at the start point and redo the series
+                    self.drop_factorization()
+                    continue
+                if substeps >= self.opts.max_substeps:
+                    raise StepFailure(f"series from a fresh K* claims a = 1 (a_max = {amax:.3g}) but its end point "
+                                      f"misses the promised accuracy {check:.3g} times, after {substeps} "
+                                      f"continuation sub-steps (max_substeps = {self.opts.max_substeps})",
+                                      step=step, t=t, amax=amax, residual_norm=r0_norm)
+                substeps += 1
+                st.substeps += 1
+                # continuation sub-step: to the end point when it is closer to the solution than
+                # the start (Newton distance by K*), else half-way along the series
+                if distance < P.norm(coeffs[0]):
+                    d_s, r_next = d_end, r_end
+                else:
+                    d_s = d_s + evaluate_series(coeffs, 0.5)
+                fresh = False
+                continue
+            approx, a_pade, pade_end = self._try_pade(coeffs, d_s, args)
+            if pade_end is not None and pade_end[1] <= CHECK_LIMIT:
+                st.pade_accepted += 1
+                return self._accepted(pade_end[0], a_pade, p, pade_end[3])
+            if not fresh:  # stale K*: refactorise at the current point and redo the series
+                self.drop_factorization()
+                continue
+            if not np.all(np.isfinite(coeffs)):
+                raise NonFiniteError("series coefficients are not finite with a fresh K*", step=step, t=t,
+                                     amax=amax, residual_norm=r0_norm)
+            if substeps >= self.opts.max_substeps or max(amax, a_pade) < 1e-12:
+                raise StepFailure(f"series from a fresh K* cannot reach a = 1 after {substeps} "
+                                  f"continuation sub-steps (max_substeps = {self.opts.max_substeps})",
+                                  step=step, t=t, amax=amax, residual_norm=r0_norm)
+            substeps += 1
+            st.substeps += 1  # counted when taken (a refused sub-step is a failure, not a sub-step)
+            d_s, r_next = self._continuation_point(coeffs, d_s, amax, approx, a_pade, pade_end)
+            fresh = False
+
+    def _series(self, path: SeriesPath, r0, d_s, args):
+        """The series' coefficients ``c_1 .. c_p`` by K*: ``(coeffs, None)``, or, order-adaptive,
+        ``(None, (x, R(x)))`` when a truncated series is accepted on the way."""
+        p = self.opts.order
+        coeffs = np.zeros((p, d_s.size))
+        coeffs[0] = -self.problem.solve(self.fact, r0)
+        for j in range(2, p + 1):
+            rj = path.next(coeffs[j - 2])
+            coeffs[j - 1] = coeffs[j - 2] - self.problem.solve(self.fact, rj)
+            if self.opts.adaptive and j < p:
+                accepted = self._accept_early(coeffs[:j], d_s, *args)
+                if accepted is not None:
+                    return None, accepted
+        return coeffs, None
+
+    def _try_pade(self, coeffs, d_s, args):
+        """With ``pade``, the approximant of a series whose a_max < 1, its range, and when that
+        reaches a = 1 its end point checked like a series': ``(approx, a_pade, end)`` with
+        ``end = (d_end, check, distance, R(d_end))`` or None; ``(None, 0.0, None)`` untried."""
+        if not (self.opts.pade and np.all(np.isfinite(coeffs))):
+            return None, 0.0, None
+        approx, a_pade = self._pade_range(coeffs, d_s)
+        if a_pade < 1.0:
+            return approx, a_pade, None
+        d_end = d_s + _pade.evaluate(approx, 1.0)
+        check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], *args)
+        return approx, a_pade, (d_end, check, distance, r_end)
+
+    def _continuation_point(self, coeffs, d_s, amax, approx, a_pade, pade_end):
+        """Where a continuation sub-step restarts the homotopy (and the residual there, when
+        known): the farther trusted point of the series (at a_max) and of its Padé approximant."""
+        if approx is None or a_pade <= amax:
+            return d_s + evaluate_series(coeffs, amax), None
+        if a_pade < 1.0:
+            return d_s + _pade.evaluate(approx, a_pade), None
+        d_end, _, distance, r_end = pade_end
+        if distance < self.problem.norm(coeffs[0]):  # the approximant's end point failed its check but
+            return d_end, r_end  # is closer to the solution than the start (as for a series)
+        return d_s + evaluate_series(coeffs, amax), None
+
+    def _accept_early(self, coeffs, d_s, x_old, t, dt, params):
+        """Order-adaptive acceptance of the series truncated at order ``j = len(coeffs) < p``:
+        ``(x, R(x))`` with the end point ``x = d_s + c_1 + ... + c_j`` when its a_max (eq. 26 at
+        order j) reaches 1 and it passes the same end-point check as a full series, else None
+        (the series goes on to order j + 1; a truncated series that fails is no failure of the
+        step)."""
+        amax = self._validity_range(coeffs, d_s)
+        if not amax >= 1.0:
+            return None
+        d_end = d_s + coeffs.sum(axis=0)
+        check, _, r_end = self._end_point_check(d_end, d_s, coeffs[0], x_old, t, dt, params)
+        if check > CHECK_LIMIT:
+            return None
+        return self._accepted(d_end, amax, coeffs.shape[0], r_end)
+
+    def _pade_range(self, coeffs, d_s):
+        """The Padé approximant of the order-p series and its validity range (searched up to
+        a = 1, by this solver's tolerance and criterion): ``(approx, a_pade)``."""
+        approx = _pade.approximant(coeffs, self.problem.scale)
+        a_pade = _pade.pade_validity_range(approx, self.opts.tol, limit=1.0,
+                                           state=reference_state(self.opts.criterion, d_s))
+        return approx, a_pade
+
+    def _validity_range(self, coeffs, d_s) -> float:
+        """a_max of the series ``coeffs`` from ``d_s`` by this solver's criterion."""
+        return validity_range(coeffs, self.problem.scale, self.opts.tol,
+                              state=reference_state(self.opts.criterion, d_s))
+
+    def _accepted(self, d_end, amax, order, r_end):
+        """Record an accepted series (a_max, its order); return ``(d_end, R(d_end))``."""
+        st = self.problem.stats
+        st.amax.append(amax)
+        st.orders.append(order)
+        return d_end, r_end
+
+    def _end_point_check(self, d_end, d_s, c_1, x_old, t, dt, params):
+        """A-posteriori check of an accepted series: the Newton distance of its end point by the
+        factorised K*, ``|K*^-1 R(d_end)|``, over what the acceptance promised (see :class:`ANM`).
+
+        Returns ``(ratio, distance, R(d_end))``.
+        One residual evaluation and one triangular solve.  A non-finite residual at the end
+        point is not a question of series accuracy: the ratio is then 0 and the state goes to
+        the caller, whose accepted-state check names it (:class:`NonFiniteError`).
+        """
+        P = self.problem
+        r_end = P.residual(d_end, x_old, t, dt, params)
+        if not np.all(np.isfinite(r_end)):
+            return 0.0, np.inf, r_end
+        distance = P.norm(P.solve(self.fact, r_end))
+        promised = promised_accuracy(P.norm, self.opts.tol, c_1, d_end, reference_state(self.opts.criterion, d_s))
+        return distance / promised, distance, r_end
+
+
+@dataclasses.dataclass(frozen=True)
+class ANM(AttemptSolver):
+    """Asymptotic Numerical Method: homotopy, Taylor series by jet, continuation (kind ``"anm"``).
+
+    Each time step sums the Taylor series of a homotopy from the previous state to the step's
+    solution at a = 1, with one factorised K* reused for every order and, while its series
+    stay valid, across steps.  A series is accepted when its validity range a_max (eq. 26,
+    :func:`~jaxanm.validity_range`) reaches 1 *and* its end point passes an a-posteriori
+    check: its Newton distance ``|K*^-1 R(d_end)|`` must be within
+    :data:`~jaxanm._acceptance.CHECK_LIMIT` times what eq. 26 promised (``docs/method/acceptance.md``).
+    A series that falls short with a stale K* is redone after refactorising; with a fresh K*
+    the step goes on by continuation sub-steps.  The new state holds the K* used last and the
+    residual at the accepted state (evaluated by the end-point check).
+
+    Parameters
+    ----------
+    order : int
+        Truncation order p of the series (>= 2: eq. 26 compares c_1 and c_p).
+    tol : float
+        eta of eq. 26, in (0, 1): the series is accepted at a = 1 when a_max >= 1 and its end
+        point passes the check.
+    max_substeps : int
+        Continuation sub-steps allowed within one time step (each after a fresh K* still gave
+        a_max < 1) before the step is declared failed (then ``integrate`` halves dt); >= 0.
+    criterion : {"increment", "state"}
+        What ``tol`` is relative to.  ``"increment"`` is the paper's eq. 26: the last term is
+        ``tol`` times the first-order increment ``c_1``.  ``"state"`` also accepts a range where
+        the last term is below ``tol`` times the state ``d_s``, the yardstick of Newton's
+        ``|dx| / |x| < delta``: eq. 26 is scale-free in the size of the step's residual, so
+        quasi-steady steps otherwise refactorise to resolve increments far below the state's
+        accuracy (docs/notes/anm_on_fsw_paper.md).
+    adaptive : bool
+        Order-adaptive series: ``order`` is the maximum, and the series is accepted at the
+        first order j whose validity range (eq. 26 with c_j as last term) reaches a = 1 and
+        whose end point passes the check; the orders used are in ``stats.orders``.  ``False``:
+        fixed order p, as in the paper's Table 1.  In both modes order j's jet is truncated to
+        the j - 1 terms known, so a series costs O(p^2) jet terms.
+    homotopy : {"convex", "newton"}
+        The artificial problem whose series is summed at a = 1 (docs/method/homotopies.md).
+        ``"convex"`` is the paper's eq. 22, ``(1 - a) K* (d - d_s) + a R(d) = 0``: order j reads
+        ``K* c_j = K* c_{j-1} - [R]_{j-1}``.  ``"newton"`` is
+        ``R(d) = (1 - a) [R(d_s) + (K_T - K*) (d - d_s)]``, whose tangent at a = 0 is K*: order
+        j reads ``K* c_j = K* c_{j-1} - [R]_j`` with ``[R]_j`` along the path with the
+        provisional ``c_j = c_{j-1}``, and each order gains a power of the increment.
+    pade : bool
+        Padé approximants extend the order-p series (docs/method/pade.md): a series whose
+        a_max < 1 is still accepted when the validity range of its approximant ``P_p`` reaches
+        a = 1 and ``P_p(1)`` passes the same end-point check; with a fresh K* a continuation
+        sub-step goes to ``P_p`` at its range when that is farther than a_max.  Counted in
+        ``stats.pade_accepted`` (their ``stats.amax`` entry is the approximant's range, so 1.0).
+        Needs ``order >= 3``; with ``adaptive`` the approximant is tried at order p only.
+    """
+
+    kind = "anm"
+    attempt = _ANMStep
+
+    order: int = 7
+    tol: float = 1e-6
+    max_substeps: int = 50
+    criterion: str = "increment"
+    adaptive: bool = False
+    homotopy: str = "convex"
+    pade: bool = False
+
+    def __post_init__(self):
+        if not (isinstance(self.order, (int, np.integer)) and not isinstance(self.order, bool) and self.order >= 2):
+            raise InputError(f"ANM.order must be an integer >= 2, got {self.order!r}: the validity range a_max "
+                             "of eq. 26 compares c_1 with c_p and takes the 1/(p-1)-th root, undefined for p = 1 "
+                             "(an order-1 series is one linearised step: use jaxanm.ModifiedNewton for that)")
+        check_tol("ANM", self.tol)
+        check_count("ANM", "max_substeps", self.max_substeps, 0)
+        check_flag("ANM", "adaptive", self.adaptive)
+        if self.homotopy not in ("convex", "newton"):
+            raise InputError(f"ANM.homotopy must be 'convex' (the paper's eq. 22) or 'newton', got {self.homotopy!r}")
+        check_flag("ANM", "pade", self.pade)
+        if self.pade and self.order < 3:
+            raise InputError(f"ANM.pade=True needs order >= 3, got order={self.order}: the Padé range compares "
+                             "the approximants of orders p and p - 1, and for p = 2 the lower one is the start "
+                             "point (use order >= 3, or pade=False)")
+        if self.criterion not in CRITERIA:
+            raise InputError(f"ANM.criterion must be 'increment' (eq. 26) or 'state', got {self.criterion!r}")
