@@ -25,7 +25,8 @@ def test_no_function_longer_than_80_lines():
 
 FSW_IMPORTS = {
     # the data flow: scene -> geometry -> physics -> discretisation -> (start) -> record -> lagrangian -> simulate
-    "scene": set(),
+    "scene_sections": set(),
+    "scene": {"scene_sections"},
     "geometry": {"scene"},
     "physics": {"scene", "geometry"},
     "discretisation": {"scene", "geometry", "physics"},
