@@ -68,6 +68,8 @@ EFFECTS = (
     "robin",
     "lagrangian",
     "tracers",
+    "slip",
+    "traverse",
 )
 """Effect names a scene may list (a contract with the CLI and the model):
 
@@ -83,7 +85,20 @@ EFFECTS = (
 - ``lagrangian``: points move with the material (``x <- x + dt V``, tool points rotate rigidly),
   stencils are rebuilt after every step;
 - ``tracers``: fixed (Eulerian) points, ``V . grad`` transport terms, passive tracer particles
-  advected for the mixing picture.
+  advected for the mixing picture;
+- ``slip``: partial sliding at the tool (Schmidt-Hattel's contact state delta =
+  ``tool.contact_state``): the plate's velocity at the tool edge is ``delta omega (-y, x)``
+  (the tool turns at omega), and the interface shear ``tau(R1)`` sliding at ``(1 - delta)
+  omega R1`` releases ``(1 - delta) omega R1 tau(R1)`` W/m^2 of frictional heat at the
+  interface, all of it heat, split between tool and plate by the interface's flux condition
+  (delta = 1, sticking, is the paper's condition and gives its residual exactly);
+- ``traverse``: the tool travels along +x at ``U = tool.traverse_speed``, seen from the tool:
+  the ring r = R2 moves at (-U, 0) (the plate streams in on the leading side x > 0 and out on
+  the trailing side), the inflow part of the ring lets the plate carry T0 in (the Robin row
+  plus ``rho Cp max(-V.N, 0) (T - T0)``), the outflow part keeps the Robin row, and the
+  transport terms ``V . grad`` of the heat equation and the inertia carry the through-flow;
+  the tracers leave across the trailing side and re-enter on the leading side.  Needs fixed
+  points (``tracers``).  U = 0 gives the scene without it exactly.
 """
 
 EFFECT_REQUIRES = {
@@ -94,6 +109,8 @@ EFFECT_REQUIRES = {
     "robin": ("conduction",),
     "lagrangian": ("viscous",),
     "tracers": ("viscous",),
+    "slip": ("viscous",),
+    "traverse": ("viscous", "tracers"),
 }
 """Effects that need other effects (the field they act on)."""
 
@@ -156,6 +173,10 @@ class Scene:
         _check("effects", self.effects, bool(have & {"viscous", "conduction"}),
                "list 'viscous' (velocity) and/or 'conduction' (temperature): without them the "
                "scene has no unknowns")
+        _check("effects", self.effects, not {"traverse", "lagrangian"} <= have,
+               "'traverse' with 'lagrangian' is not supported: the plate streaming through the disc "
+               "would carry the moving cloud out of it; use 'tracers' (fixed points, the plate's "
+               "material points enter and leave) instead of 'lagrangian'")
         for e in self.effects:
             missing = [r for r in EFFECT_REQUIRES.get(e, ()) if r not in have]
             _check("effects", self.effects, not missing,
@@ -168,6 +189,21 @@ class Scene:
                "'lagrangian' on geometry.layout = 'graded' is not supported yet: the graded cloud is "
                "validated on fixed points only (its rezoning and the tool edge sliding past the fine "
                "rings are untested); use 'tracers' instead of 'lagrangian', or layout 'polar'")
+        self._validate_contact(have)
+
+    def _validate_contact(self, have: set):
+        """The tool's contact state and travel need their effects, and fixed points."""
+        tl = self.tool
+        _check("tool.contact_state", tl.contact_state, tl.contact_state == 1.0 or "slip" in have,
+               "differs from 1 (sticking) but the scene does not list the 'slip' effect: add 'slip' to "
+               "effects, or leave tool.contact_state = 1")
+        _check("tool.traverse_speed", tl.traverse_speed, tl.traverse_speed == 0.0 or "traverse" in have,
+               "differs from 0 but the scene does not list the 'traverse' effect: add 'traverse' (and "
+               "'tracers') to effects, or leave tool.traverse_speed = 0")
+        _check("effects", self.effects, not ("slip" in have and "lagrangian" in have),
+               "'slip' with 'lagrangian' is not supported: the plate edge would turn slower than the "
+               "tool edge, separating the coincident interface pairs the moving cloud needs; use "
+               "'tracers' (fixed points) instead of 'lagrangian'")
 
     def _validate_places(self):
         g = self.geometry

@@ -264,16 +264,32 @@ class Material(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class Tool(_Section):
-    """Tool (steel): density, heat capacity, conductivity (SI) and rotation speed ``omega`` (rad/s)."""
+    """Tool (steel): density, heat capacity, conductivity (SI), rotation speed ``omega`` (rad/s),
+    contact state and travel speed.
+
+    ``contact_state`` (the ``slip`` effect): Schmidt-Hattel's delta in [0, 1], the plate's
+    tangential velocity at the tool edge over the tool's, ``delta omega R1``; 1 is sticking
+    (the paper's condition), 0 full sliding.  ``traverse_speed`` (the ``traverse`` effect):
+    the tool's travel speed U >= 0 (m/s) along +x; the plate streams past it at (-U, 0).
+    Each must keep its default (1 and 0) unless the scene lists its effect.
+    """
 
     _name = "tool"
     rho: float = 7800.0
     Cp: float = 450.0
     k: float = 36.0
     omega: float = 20.0
+    contact_state: float = 1.0
+    traverse_speed: float = 0.0
 
     def _validate(self):
         self._positive("rho", "Cp", "k", "omega")
+        _check("tool.contact_state", self.contact_state, 0.0 <= self.contact_state <= 1.0,
+               "must be in [0, 1]: the contact state delta, the plate's speed at the tool edge over the "
+               "tool's (1 sticking, 0 full sliding)")
+        _check("tool.traverse_speed", self.traverse_speed, self.traverse_speed >= 0.0,
+               "must be >= 0 (m/s): the tool travels along +x (travel along -x gives the same "
+               "fields turned by 180 degrees)")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -114,6 +114,14 @@ def _damped_newton(problem: Problem, x, args: tuple, tol: float, max_iter: int):
                       residual_norm=norms[-1])
 
 
+def flow_scene(scene):
+    """The scene of the stationary flow rows: ``viscous`` alone, with the tool's kinematics
+    kept (``slip``: the plate edge at delta omega; ``traverse``: the ring at (-U, 0), which
+    needs ``tracers``; neither adds a term to the stationary momentum rows)."""
+    kept = [e for e in ("slip", "traverse", "tracers") if scene.has(e) and (e != "tracers" or scene.has("traverse"))]
+    return scene.with_overrides({"effects": ",".join(["viscous", *kept])})
+
+
 @entry_point
 def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_iter: int = 50):
     """Initial unknowns of ``model`` with the quasi-static flow at T0; returns ``(x0, StartReport)``.
@@ -128,7 +136,7 @@ def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_ite
     The report's ``stats.wall_time_s`` is the whole start, compilation included.
     """
     began = time.perf_counter()
-    flow = make_model(scene.with_overrides({"effects": "viscous"}), model.cloud)
+    flow = make_model(flow_scene(scene), model.cloud)
     params = flow.params(model.cloud.points, stencils)
     problem = Problem(flow.residual, flow.scale(), Stats(), "sparse", flow.sparsity)
     rest = flow.initial_state(model.cloud.points)
@@ -171,7 +179,7 @@ def continuation_state(scene, model: Model, stencils, order: int = 15, tol: floa
     lengths in lam, ``residual_norms`` ``|R|_inf`` at the step ends.
     """
     began = time.perf_counter()
-    flow = make_model(scene.with_overrides({"effects": "viscous"}), model.cloud)
+    flow = make_model(flow_scene(scene), model.cloud)
     params = flow.params(model.cloud.points, stencils)
     rest = flow.initial_state(model.cloud.points)
     params["rest"] = rest
