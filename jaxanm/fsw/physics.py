@@ -44,7 +44,10 @@ PLATE         momentum balance                      plate heat equation
 RING          V = 0                                 -k dT/dN = h (T - Ta) (or dT/dN = 0)
 ============  ====================================  ============================================
 
-(alternatives in brackets when ``tool_conduction`` / ``robin`` are absent).  The coincident
+(alternatives in brackets when ``tool_conduction`` / ``robin`` are absent).  With ``slip`` the
+plate edge moves at ``delta omega (-y, x)`` and its temperature row gains the interface's
+frictional heat (:func:`_friction_heat`); with ``traverse`` the ring moves at (-U_tr, 0) and its
+row gains the inflow term ``rho Cp max(-V.N, 0) (T - T0)`` (docs/notes/traverse_and_slip.md).  The coincident
 tool-edge / plate-edge pair makes the conductivity jump exact in strong form: each side has
 its own one-sided approximation, and the pair carries the two interface conditions.
 
