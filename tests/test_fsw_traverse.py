@@ -127,3 +127,24 @@ def test_through_flow_passes_the_pin_on_both_sides(travelling):
     # 0.5: well below the 0.71 measured (0.73 at half the spacing: the defect is the model's,
     # not the cloud's); 1.05: no more than the through-flow, beyond the integration's error
     assert 0.5 < (retreating + advancing) / (2 * g.R2 * U) < 1.05
+
+
+def test_tracers_leaving_the_disc_reenter_on_the_leading_side_at_their_height():
+    """A tracer carried past r = R2 comes back on the leading side at (sqrt(R2^2 - y^2), y),
+    its carried polar velocity that of the inflow (-U, 0) there; the others are untouched."""
+    import types
+
+    from jaxanm.fsw.lagrangian import MovingRecorder
+
+    scene = load_scene("fsw_weld")
+    R2, U = scene.geometry.R2, scene.tool.traverse_speed
+    free = np.array([[-R2 * 1.001, 0.3 * R2], [0.5 * R2, -0.2 * R2], [-0.2 * R2, -R2 * 1.0005]])
+    host = types.SimpleNamespace(scene=scene, tracer_velocity=np.ones((3, 2)))
+    moved = MovingRecorder._reentered(host, free)
+    for i, y in ((0, 0.3 * R2), (2, -R2)):
+        assert moved[i, 1] == y and moved[i, 0] == pytest.approx(math.sqrt(R2 * R2 - y * y), abs=1e-15)
+    assert np.array_equal(moved[1], free[1]) and np.array_equal(host.tracer_velocity[1], [1.0, 1.0])
+    x, y = moved[0]
+    r = math.hypot(x, y)
+    # (-U, 0) in polar form about the axis: angular speed (x v - y u) / r^2, radial (x u + y v) / r
+    assert host.tracer_velocity[0] == pytest.approx([y * U / r ** 2, -x * U / r], rel=1e-12)
