@@ -14,7 +14,14 @@ thickness, :mod:`jaxanm.fsw.physics` for the 2-D equations):
 - heat: ``rho Cp dT/dt = (1/r) d/dr(r k dT/dr) + q`` in the plate with
   ``q = 3 beta mu epsbar^2 = beta tau s`` (``beta`` times the dissipation ``sigma : epsdot``),
   ``rho_t Cp_t dT/dt = (1/r) d/dr(r k_t dT/dr)`` in the tool, T and heat flux continuous at R1,
-  ``-k dT/dr = h (T - Ta)`` at R2.
+  ``-k dT/dr = h (T - Ta)`` at R2;
+- slip (effect ``slip``, contact state ``delta = tool.contact_state``): the plate edge turns at
+  ``delta omega`` (so ``int s / r dr = -delta omega``), the torque is still ``2 pi |C|`` (the
+  interface shear is the plate's ``C / R1^2``), and the interface releases the frictional heat
+  ``(1 - delta) omega R1 |C| / R1^2`` W/m^2 at R1, which the tool and the plate conduct away
+  (flux jump at R1: ``-k dT/dr|plate + k_t dT/dr|tool`` equals it).  The input power
+  ``M omega`` is then ``delta M omega`` of plastic dissipation (``beta`` of it heat) plus
+  ``(1 - delta) M omega`` of friction (all of it heat).
 
 The scene's effects select the terms as :mod:`jaxanm.fsw.physics` does: without ``softening``
 mu uses T0; without ``dissipation`` q = 0; without ``tool_conduction`` the plate edge R1 is
@@ -173,7 +180,9 @@ class AxisymmetricSolution:
     T : (S, N) cell temperatures (K); ``T_R1``, ``T_R2`` (S,) the interface and outer-edge
         temperatures; T0 the initial temperature.
     torque : (S,) torque per unit thickness the tool exerts on the plate, ``2 pi |C|`` (N m/m).
-    power : (S,) mechanical power ``omega * torque`` (W/m); ``beta`` times it heats the plate.
+    power : (S,) mechanical power ``omega * torque`` (W/m): with ``slip``, ``delta`` of it is
+        dissipated plastically (``beta`` times that heats the plate) and ``1 - delta`` is
+        frictional heat at the interface.
     v_faces : (S, F) v_theta (m/s) at the plate's cell edges ``plate_edges`` (F,).
     stored : (S,) heat stored, ``int rho Cp (T - T0) dA`` over tool and plate (J/m).
     error_estimate : str, the estimated error (filled by :func:`solve` with ``estimate=True``).
@@ -197,6 +206,7 @@ class AxisymmetricSolution:
     error_estimate: str = "not estimated"
     error_T: float = math.nan
     error_power: float = math.nan
+    omega: float = math.nan
 
     def temperature(self, r, i: int = -1):
         """T (K) at radii ``r`` at the i-th time: piecewise linear through the cell centres, the
@@ -214,8 +224,8 @@ class AxisymmetricSolution:
         """v_theta (m/s) at radii ``r`` (tool: rigid; plate: piecewise linear in v/r between edges)."""
         r = np.asarray(r, dtype=np.float64)
         w = np.interp(r, self.plate_edges, self.v_faces[i] / self.plate_edges)
-        omega = self.v_faces[i][0] / self.R1
-        return np.where(r <= self.R1, omega * r, w * r)
+        omega = self.omega if math.isfinite(self.omega) else self.v_faces[i][0] / self.R1
+        return np.where(r < self.R1, omega * r, w * r)  # R1 itself: the plate edge (slip)
 
 
 def _rise_tolerance() -> float:
@@ -300,20 +310,32 @@ class _Conduction:
         self._k, self._width, self._g_out, self._h, self._Ta = k, width, g_out, th.h, th.Ta
         self._j_int = int(np.searchsorted(edges, R1 * (1 - 1e-12))) if edges[0] < R1 * (1 - 1e-12) else None
 
-    def boundary_values(self, T):
-        """``(T(R1), T(R2))`` from the cell temperatures ``T``."""
+    def boundary_values(self, T, q_f: float = 0.0):
+        """``(T(R1), T(R2))`` from the cell temperatures ``T`` and the interface source ``q_f``
+        (W/m^2; the interface face's balance of the two half-cell fluxes)."""
         k, width, j_int = self._k, self._width, self._j_int
-        if j_int is None:  # no tool cells: insulated plate edge, T(R1) = first cell (zero gradient)
-            T_R1 = T[0]
+        if j_int is None:  # no tool cells: insulated tool, all of q_f into the first plate cell
+            T_R1 = T[0] + q_f * 0.5 * width[0] / k[0]
         else:
             gl, gr = k[j_int - 1] / (0.5 * width[j_int - 1]), k[j_int] / (0.5 * width[j_int])
-            T_R1 = (gl * T[j_int - 1] + gr * T[j_int]) / (gl + gr)
+            T_R1 = (gl * T[j_int - 1] + gr * T[j_int] + q_f) / (gl + gr)
         if self._g_out > 0:
             gi = k[-1] / (0.5 * width[-1])
             T_R2 = (gi * T[-1] + self._h * self._Ta) / (gi + self._h)
         else:
             T_R2 = T[-1]
         return T_R1, T_R2
+
+    def interface_split(self) -> tuple:
+        """``(cells, fractions)``: the cells on both sides of R1 and the fractions of a source at
+        the interface face that each receives (the face temperature eliminated from the two
+        half-cell fluxes: ``g_side / (g_tool + g_plate)``); the first plate cell alone when the
+        tool is insulated (no tool cells)."""
+        j = self._j_int
+        if j is None:
+            return np.array([0]), np.array([1.0])
+        gl, gr = self._k[j - 1] / self._width[j - 1], self._k[j] / self._width[j]
+        return np.array([j - 1, j]), np.array([gl, gr]) / (gl + gr)
 
 
 class _QuasiStaticFlow:
@@ -322,7 +344,10 @@ class _QuasiStaticFlow:
     (widths ``w_p``), each solve started from the last one's."""
 
     def __init__(self, scene: Scene, r_p: np.ndarray, w_p: np.ndarray, ip: np.ndarray):
-        self.m, self.omega, self.T0 = scene.material, scene.tool.omega, scene.thermal.T0
+        self.delta = scene.tool.contact_state if scene.has("slip") else 1.0
+        self.omega_tool = scene.tool.omega
+        # the plate edge's angular speed: the tool's (sticking) or delta times it (slip)
+        self.m, self.omega, self.T0 = scene.material, self.delta * scene.tool.omega, scene.thermal.T0
         self.R1, self.R2 = scene.geometry.R1, scene.geometry.R2
         self.soft = scene.has("softening")
         self.r_p, self.w_p, self.ip = r_p, w_p, ip
@@ -331,6 +356,9 @@ class _QuasiStaticFlow:
     def __call__(self, T):
         """(|C|, |s| at plate cell centres) of the quasi-static flow at temperatures T."""
         m, omega, R1, R2, r_p, w_p, ip = self.m, self.omega, self.R1, self.R2, self.r_p, self.w_p, self.ip
+        if omega == 0.0:  # full sliding: the plate stays at rest, no shear (and no friction heat)
+            self.C, self.s = 0.0, np.zeros(r_p.size)
+            return self.C, self.s
         coef = m.K / 3.0 * (T[ip] if self.soft else np.full(ip.size, self.T0)) ** m.A
         logC = math.log(self.C) if self.C is not None else None
         if logC is None:  # start: the isothermal power law, C from the unregularised closed form
@@ -363,7 +391,11 @@ class _Record:
 
     def __call__(self, T):
         """Record the state ``T`` of an output step."""
-        T_R1, T_R2 = self.cond.boundary_values(T)
+        q_f = 0.0
+        if self.flow is not None:
+            f = self.flow
+            q_f = (1.0 - f.delta) * f.omega_tool * f(T)[0] / f.R1  # friction heat flux at R1
+        T_R1, T_R2 = self.cond.boundary_values(T, q_f)
         self.T.append(T.copy())
         self.R1.append(T_R1)
         self.R2.append(T_R2)
@@ -387,7 +419,8 @@ class _Record:
         return AxisymmetricSolution(times=times, edges=edges, r=rc, T=np.asarray(self.T)[idx],
                                     T_R1=np.asarray(self.R1)[idx], T_R2=np.asarray(self.R2)[idx], T0=self.T0,
                                     R1=g.R1, R2=g.R2, torque=C, power=omega * C, plate_edges=self.plate_edges,
-                                    v_faces=np.asarray(self.v)[idx], stored=np.asarray(self.E)[idx])
+                                    v_faces=np.asarray(self.v)[idx], stored=np.asarray(self.E)[idx],
+                                    omega=omega)
 
 
 def _steps(cond: _Conduction, sources, T, n_total: int, dt: float, scheme: str, heat: bool, tol: float):
@@ -427,12 +460,17 @@ def _solve(scene: Scene, times, steps_at, dt: float, scheme: str, edges: np.ndar
     cond = _Conduction(scene, edges, in_plate)
     flow = _QuasiStaticFlow(scene, rc[ip], width[ip], ip) if scene.has("viscous") else None
     beta = scene.material.beta
+    cells, fractions = cond.interface_split()
+    friction = flow is not None and flow.delta < 1.0
 
     def sources(T):
         q = np.zeros(rc.size)
-        if flow is not None and scene.has("dissipation"):
+        if flow is not None and (scene.has("dissipation") or friction):
             C, s = flow(T)
-            q[ip] = beta * C * s / flow.r_p * flow.w_p  # beta tau |s| r dr, tau = C / r^2
+            if scene.has("dissipation"):
+                q[ip] = beta * C * s / flow.r_p * flow.w_p  # beta tau |s| r dr, tau = C / r^2
+            if friction:  # (1 - delta) omega R1 tau(R1) R1 per radian at the interface face
+                q[cells] += (1.0 - flow.delta) * flow.omega_tool * C * fractions
         return q
 
     record = _Record(cond, flow, plate_edges, T0)
@@ -470,14 +508,22 @@ def shear_band_width(scene: Scene) -> float:
     and the band holds 1 - 1/e of the velocity drop and most of the dissipation
     (``q ~ r^(-2 - 2/n)``).  A hotter plate (softening) shears in about the same band.
     """
-    iso = scene.with_overrides({"effects": "viscous"})
+    slip = scene.has("slip")
+    iso = scene.with_overrides({"effects": "viscous,slip" if slip else "viscous", "tool.traverse_speed": 0.0})
     sol = solve(iso, [0.0])
     r = sol.plate_edges
-    w = sol.v_faces[0] / (scene.tool.omega * r)  # 1 at R1, decreasing to 0 at R2
+    edge = scene.tool.contact_state * scene.tool.omega if slip else scene.tool.omega
+    w = sol.v_faces[0] / (edge * r)  # 1 at R1, decreasing to 0 at R2
     j = int(np.argmax(w <= math.exp(-1.0)))
     # linear in r between the two edges around the crossing (the first cells are < 1 um)
     t = (w[j - 1] - math.exp(-1.0)) / (w[j - 1] - w[j])
     return float(r[j - 1] + t * (r[j] - r[j - 1]) - scene.geometry.R1)
+
+
+def _travels(scene: Scene) -> bool:
+    """Whether the tool travels (``traverse`` with U > 0): the fields are then not axisymmetric
+    and this module's solution is no reference for them."""
+    return scene.has("traverse") and scene.tool.traverse_speed > 0
 
 
 def rise_error(result, steps_per_ms: int = 1) -> dict | None:
@@ -488,8 +534,9 @@ def rise_error(result, steps_per_ms: int = 1) -> dict | None:
     is zero).  The reference is :func:`solve` on its default mesh with ``refine=1`` and about
     ``steps_per_ms`` steps a millisecond (at least 10 in all): within 3e-3 K of the converged
     solution on fsw_paper's physics to 0.7 s (measured against ``refine=2``, dt = 1e-4; 0.7 s
-    of solve).  Every FSW scene is axisymmetric (a disc round the turning tool, uniform
-    initial state), so this is the run's error, the solution's own aside.
+    of solve).  Every FSW scene whose tool does not travel is axisymmetric (a disc round the
+    turning tool, uniform initial state), so this is the run's error, the solution's own
+    aside; when the tool travels (``traverse`` with U > 0) it returns None.
 
     Returns ``{"t", "rel_l2", "mean_ratio", "max_abs_K"}``: the relative L2 error of
     ``T - T0`` over the points, the run's mean rise over the reference's and the largest
@@ -497,7 +544,7 @@ def rise_error(result, steps_per_ms: int = 1) -> dict | None:
     than fsw_paper) it is repeated with the scene's own time step.
     """
     t = np.asarray(result.t, dtype=np.float64)
-    if not (result.scene.has("conduction") and t.size and t[-1] > 0):
+    if not (result.scene.has("conduction") and t.size and t[-1] > 0) or _travels(result.scene):
         return None
     return _rise_errors(result, [t.size - 1], max(10, math.ceil(t[-1] * 1e3 * steps_per_ms)))[0]
 
@@ -507,7 +554,7 @@ def rise_errors(result, steps_per_ms: int = 1) -> list:
     (t >= 0.01 s at the default millisecond step), from one solve when the saved times are
     multiples of that step (else one solve per time); ``[]`` without ``conduction``."""
     t = np.asarray(result.t, dtype=np.float64)
-    if not result.scene.has("conduction"):
+    if not result.scene.has("conduction") or _travels(result.scene):
         return []
     dt = 1e-3 / steps_per_ms
     kept = [i for i in range(t.size) if t[i] >= 10 * dt - 1e-12]

@@ -52,10 +52,12 @@ from .record import ProbeSites
 __all__ = ["PARAMETERS", "FitResult", "fit", "gauss_newton", "material_theta", "simulate", "theta_to_material",
            "value_and_grad", "weighted_residuals"]
 
-PARAMETERS = ("logK", "K", "A", "n", "eps0", "rho", "Cp", "k", "beta", "rho_t", "Cp_t", "k_t", "h", "Ta", "lam")
+PARAMETERS = ("logK", "K", "A", "n", "eps0", "rho", "Cp", "k", "beta", "rho_t", "Cp_t", "k_t", "h", "Ta", "lam",
+              "delta")
 """Names ``theta`` may hold: ``logK`` (= ln K) or ``K``, and constants of ``params["c"]``
 (:data:`jaxanm.fsw.physics.CONSTANTS`) other than the initial-state data (``T0``, ``omega``),
-the discretisation (``dr``) and the scales (``U``, ``Ts``, ``mu_ref``)."""
+the discretisation (``dr``) and the scales (``U``, ``Ts``, ``mu_ref``); ``delta`` is the
+contact state of a scene with the ``slip`` effect (the initial state keeps the scene's)."""
 
 
 def _bind(params, theta):
@@ -108,6 +110,8 @@ def _check_theta(theta) -> dict:
         raise InputError(f"theta['n'] = {out['n']} is outside (0, 2] (power-law index)")
     if "A" in out and not -20.0 <= out["A"] <= 20.0:
         raise InputError(f"theta['A'] = {out['A']} is outside [-20, 20] (the range jaxanm.fsw.Material accepts)")
+    if "delta" in out and not 0 <= out["delta"] <= 1:
+        raise InputError(f"theta['delta'] = {out['delta']} is outside [0, 1] (the contact state)")
     if "K" in out and not out["K"] > 0:
         raise InputError(f"theta['K'] = {out['K']} must be > 0 (or calibrate logK)")
     return out

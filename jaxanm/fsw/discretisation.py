@@ -17,7 +17,7 @@ import scipy.sparse
 
 from .. import mls
 from .._factorization import sparse_lu
-from .geometry import Cloud, build_cloud, build_stencils, rigid
+from .geometry import PLATE_EDGE, Cloud, build_cloud, build_stencils, rigid
 from .physics import CONSTANTS, Effects, complete_fields, mu_reference, residual_for
 from .scene import Scene
 
@@ -63,7 +63,7 @@ class Model:
         values = dict(K=m.K, A=m.A, n=m.n, eps0=m.eps0, rho=m.rho, Cp=m.Cp, k=m.k, beta=m.beta,
                       rho_t=tl.rho, Cp_t=tl.Cp, k_t=tl.k, omega=tl.omega, h=th.h, Ta=th.Ta,
                       T0=th.T0, lam=s.mechanics.penalty, dr=g.dr, U=tl.omega * g.R1, Ts=th.T0,
-                      mu_ref=mu_reference(s))
+                      mu_ref=mu_reference(s), delta=tl.contact_state, U_tr=tl.traverse_speed)
         return {k: np.float64(values[k]) for k in CONSTANTS}
 
     def params(self, points: np.ndarray, stencils: mls.Stencils) -> dict:
@@ -76,11 +76,18 @@ class Model:
         return p
 
     def initial_values(self, points: np.ndarray) -> np.ndarray:
-        """Initial field values (N, len(fields)): the tool (and its edge) turning, plate at rest, T0."""
+        """Initial field values (N, len(fields)): the tool (and its edge) turning, plate at rest, T0.
+
+        With ``slip`` the plate edge turns at ``delta omega``; with ``traverse`` the plate at
+        rest is seen from the travelling tool: it moves at (-U, 0).
+        """
         sc, kind = self.scene, self.cloud.kind
         sticking = rigid(kind)
         omega = sc.tool.omega
-        cols = {"u": np.where(sticking, -omega * points[:, 1], 0.0),
+        if self.effects.slip:
+            omega = np.where(kind == PLATE_EDGE, sc.tool.contact_state, 1.0) * omega
+        rest_u = -sc.tool.traverse_speed if self.effects.traverse else 0.0
+        cols = {"u": np.where(sticking, -omega * points[:, 1], rest_u),
                 "v": np.where(sticking, omega * points[:, 0], 0.0),
                 "T": np.full(len(kind), sc.thermal.T0)}
         return np.stack([cols[f] for f in self.fields], axis=1)

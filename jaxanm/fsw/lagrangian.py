@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 import jaxanm
 
 from .discretisation import Model, Refit
-from .geometry import build_stencils, evaluate_stencils, neighbour_list, rigid
+from .geometry import PLATE_EDGE, build_stencils, evaluate_stencils, neighbour_list, rigid
 from .record import Recorder
 from .scene import Scene
 from .start import StartReport
@@ -173,17 +173,44 @@ class MovingRecorder(Recorder):
 
     def _advected(self, particles: np.ndarray, x, dt: float) -> np.ndarray:
         """Tracers moved over dt: those started on the tool or its edge turn with the tool by
-        ``omega dt``, exactly; the others follow the flow of unknowns ``x`` by :func:`advect`
-        (the MLS velocity at their predicted midpoints, one evaluation a step)."""
-        turning = rigid(self.model.cloud.kind)
+        ``omega dt``, exactly (on the plate edge by ``delta omega dt`` with ``slip``); the others
+        follow the flow of unknowns ``x`` by :func:`advect` (the MLS velocity at their predicted
+        midpoints, one evaluation a step); with ``traverse``, those that left the disc re-enter
+        (:meth:`_reentered`)."""
+        kind, tool = self.model.cloud.kind, self.scene.tool
+        turning = rigid(kind)
         moved = particles.copy()
-        moved[turning] = _rotate(particles[turning], self.scene.tool.omega * dt)
+        moved[turning] = _rotate(particles[turning], tool.omega * dt)
+        if self.model.effects.slip:
+            edge = kind == PLATE_EDGE
+            moved[edge] = _rotate(particles[edge], tool.contact_state * tool.omega * dt)
 
         def velocity(at):
             return _velocity(self._values_at(x, at, self.tracer_neighbours))
 
         moved[~turning], self.tracer_velocity = advect(particles[~turning], velocity, dt, self.tracer_velocity)
+        if self.model.effects.traverse:
+            moved[~turning] = self._reentered(moved[~turning])
         return moved
+
+    def _reentered(self, free: np.ndarray) -> np.ndarray:
+        """Free tracers that the through-flow carried out of the disc (r > R2) re-enter on the
+        leading side at their height y, ``(sqrt(R2^2 - y^2), y)``: the material arriving there
+        has moved at (-U, 0) along its line y = const.  Their colour (plate y > 0 or y < 0)
+        stays right, since y is kept; their carried velocity becomes the inflow's."""
+        R2, U = self.scene.geometry.R2, self.scene.tool.traverse_speed
+        out = np.hypot(free[:, 0], free[:, 1]) > R2
+        if not out.any():
+            return free
+        free = free.copy()
+        y = np.clip(free[out, 1], -R2, R2)
+        free[out] = np.stack([np.sqrt(R2 * R2 - y * y), y], axis=1)
+        inflow = np.broadcast_to([-U, 0.0], free[out].shape)
+        away = np.hypot(free[out, 0], free[out, 1]) > 0
+        carried = self.tracer_velocity[out]
+        carried[away] = _polar(free[out][away], inflow[away])
+        self.tracer_velocity[out] = carried
+        return free
 
     def _marker_values(self, node_values: dict, at_free: dict) -> dict:
         """Fields at the material points: the nodes' own values where they coincide (tool and

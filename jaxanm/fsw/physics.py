@@ -44,7 +44,10 @@ PLATE         momentum balance                      plate heat equation
 RING          V = 0                                 -k dT/dN = h (T - Ta) (or dT/dN = 0)
 ============  ====================================  ============================================
 
-(alternatives in brackets when ``tool_conduction`` / ``robin`` are absent).  The coincident
+(alternatives in brackets when ``tool_conduction`` / ``robin`` are absent).  With ``slip`` the
+plate edge moves at ``delta omega (-y, x)`` and its temperature row gains the interface's
+frictional heat (:func:`_friction_heat`); with ``traverse`` the ring moves at (-U_tr, 0) and its
+row gains the inflow term ``rho Cp max(-V.N, 0) (T - T0)`` (docs/notes/traverse_and_slip.md).  The coincident
 tool-edge / plate-edge pair makes the conductivity jump exact in strong form: each side has
 its own one-sided approximation, and the pair carries the two interface conditions.
 
@@ -92,8 +95,9 @@ from .scene import Scene
 __all__ = ["CONSTANTS", "Effects", "complete_fields", "mu_reference", "residual_for", "viscosity"]
 
 CONSTANTS = ("K", "A", "n", "eps0", "rho", "Cp", "k", "beta", "rho_t", "Cp_t", "k_t", "omega",
-             "h", "Ta", "T0", "lam", "dr", "U", "Ts", "mu_ref")
-"""Scalars of ``params["c"]``: material, tool, thermal data, penalty and the scales."""
+             "h", "Ta", "T0", "lam", "dr", "U", "Ts", "mu_ref", "delta", "U_tr")
+"""Scalars of ``params["c"]``: material, tool, thermal data, penalty, the scales (``U = omega R1``,
+``Ts``, ``mu_ref``), the contact state ``delta`` and the travel speed ``U_tr``."""
 
 
 class Effects(NamedTuple):
@@ -108,6 +112,8 @@ class Effects(NamedTuple):
     robin: bool
     lagrangian: bool
     tracers: bool
+    slip: bool = False
+    traverse: bool = False
 
     @classmethod
     def of(cls, scene: Scene) -> "Effects":
@@ -193,13 +199,31 @@ def _momentum_rows(flags: Effects, st, p, dt, vel_nodal, vel_old_nodal, temp):
         stiff = stiff + c["rho"] * c["dr"] ** 2 / (c["mu_ref"] * dt)
     sm = c["dr"] ** 2 / (c["U"] * stiff)
     xy = p["xy"]
-    ub, vb = -c["omega"] * xy[:, 1], c["omega"] * xy[:, 0]
+    # the edge velocity: the tool's rigid turn, the plate edge's delta times it (slip)
+    turn = jnp.where(kind == PLATE_EDGE, c["delta"], 1.0) * c["omega"] if flags.slip else c["omega"]
+    ub, vb = -turn * xy[:, 1], turn * xy[:, 0]
     plate, ring = kind == PLATE, kind == RING
-    rows = [jnp.where(plate, -fx * sm, jnp.where(ring, u, u - ub) / c["U"]),
+    # the ring moves at (-U_tr, 0) when the tool travels (the plate streaming past it)
+    ring_u = u + c["U_tr"] if flags.traverse else u
+    rows = [jnp.where(plate, -fx * sm, jnp.where(ring, ring_u, u - ub) / c["U"]),
             jnp.where(plate, -fy * sm, jnp.where(ring, v, v - vb) / c["U"])]
     # grad(mu epsbar^2) = mu (grad epsbar^2 + epsbar^2 grad ln mu): the source's local decay
     grad_mu_e2 = (mu * (de2x + e2 * lx), mu * (de2y + e2 * ly))
-    return rows, (u, v), (mu * e2, grad_mu_e2)
+    friction = _friction_heat(c, p["normal"], xy, mu, exx, eyy, exy) if flags.slip else None
+    return rows, (u, v), (mu * e2, grad_mu_e2, friction)
+
+
+def _friction_heat(c, normal, xy, mu, exx, eyy, exy):
+    """Frictional heat flux (W/m^2) released at the tool edge by slip, at every point (used at
+    the plate-edge points): ``(1 - delta) omega r`` (the sliding speed) times the shear stress
+    the tool exerts on the plate, ``-tau_r_theta = -2 mu e_r_theta`` (the plate's outward normal
+    at its edge is -e_r).  Signed: it is the power the interface shear does on the slip, so
+    that torque x omega = plastic dissipation + this heat holds exactly in the continuum.
+    """
+    nx, ny = normal[:, 0], normal[:, 1]
+    e_rt = nx * ny * (eyy - exx) + exy * (nx * nx - ny * ny)
+    r = nx * xy[:, 0] + ny * xy[:, 1]  # the radius (0 at the centre, whose normal is 0)
+    return (1.0 - c["delta"]) * c["omega"] * r * (-2.0 * mu * e_rt)
 
 
 def _edge_source_width(d, q, dq_dn):
@@ -238,6 +262,11 @@ def _heat_rows(flags: Effects, edge_rows: str, edge_source: str, st, p, dt, T_ol
     ring_row = c["k"] * dTdn
     if flags.robin:
         ring_row = ring_row + c["h"] * (T - c["Ta"])
+    if flags.traverse:
+        # inflow (the ring's velocity (-U_tr, 0) entering, V.N = -U_tr N_x < 0): the plate carries
+        # T0 in, -k dT/dN = rho Cp |V.N| (T - T0) added to the edge's own condition (Danckwerts)
+        inflow = jnp.maximum(c["U_tr"] * normal[:, 0], 0.0)
+        ring_row = ring_row + c["rho"] * c["Cp"] * inflow * (T - c["T0"])
     if flags.tool_conduction:
         tool_heat = c["rho_t"] * c["Cp_t"] * dTdt - c["k_t"] * lapT
         s_tool = c["dr"] ** 2 / (c["Ts"] * (c["k_t"] + c["rho_t"] * c["Cp_t"] * c["dr"] ** 2 / dt))
@@ -254,13 +283,16 @@ def _heat_rows(flags: Effects, edge_rows: str, edge_source: str, st, p, dt, T_ol
         stored = d * plate_heat + (d * tool_heat[partner] if flags.tool_conduction else 0.0)
         if flags.dissipation and edge_source == "exponential":
             # the source over [R1, R1 + d] along its local decay instead of q(R1) d
-            q, (qx, qy) = source
+            q, (qx, qy) = source[:2]
             width = _edge_source_width(d, q, qx * normal[:, 0] + qy * normal[:, 1])
             stored = stored + (d - width) * 3.0 * c["beta"] * q
         s_edge = 1.0 / (c["Ts"] * (c["k"] / c["dr"] + d * c["rho"] * c["Cp"] / dt))
+        if flags.slip:  # the interface's frictional heat enters the edge cell
+            stored = stored - source[2]
         plate_edge_row = (stored - edge_flux) * s_edge
     else:
-        plate_edge_row = edge_flux * s_flux
+        # flux balance at the interface: what the plate and tool conduct away is the friction heat
+        plate_edge_row = (edge_flux + source[2] if flags.slip else edge_flux) * s_flux
     return jnp.select(
         [kind == TOOL, kind == TOOL_EDGE, kind == PLATE_EDGE, kind == PLATE, kind == RING],
         [tool_row, tool_edge_row, plate_edge_row, plate_heat * s_plate, ring_row * s_flux])

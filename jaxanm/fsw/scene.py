@@ -27,8 +27,10 @@ import math
 import tomllib
 from pathlib import Path
 
-from ..errors import InputError
-from .._solver import ANM, ModifiedNewton, Newton
+from .scene_sections import (  # noqa: F401 - re-exported: the sections are part of this module's API
+    EDGE_ROWS, EDGE_SOURCES, LAYOUTS, MAX_ORDER, MAX_POINTS, MAX_SAMPLES, MAX_STEPS, SOLVER_KINDS,
+    SOLVER_NAMES, STARTS, Geometry, Material, Mechanics, Probe, SceneError, Section, SolverSpec,
+    Thermal, Time, Tool, _NAME_CHARS, _as_str, _as_strs, _check)
 
 __all__ = [
     "EDGE_ROWS",
@@ -66,6 +68,8 @@ EFFECTS = (
     "robin",
     "lagrangian",
     "tracers",
+    "slip",
+    "traverse",
 )
 """Effect names a scene may list (a contract with the CLI and the model):
 
@@ -81,7 +85,20 @@ EFFECTS = (
 - ``lagrangian``: points move with the material (``x <- x + dt V``, tool points rotate rigidly),
   stencils are rebuilt after every step;
 - ``tracers``: fixed (Eulerian) points, ``V . grad`` transport terms, passive tracer particles
-  advected for the mixing picture.
+  advected for the mixing picture;
+- ``slip``: partial sliding at the tool (Schmidt-Hattel's contact state delta =
+  ``tool.contact_state``): the plate's velocity at the tool edge is ``delta omega (-y, x)``
+  (the tool turns at omega), and the interface shear ``tau(R1)`` sliding at ``(1 - delta)
+  omega R1`` releases ``(1 - delta) omega R1 tau(R1)`` W/m^2 of frictional heat at the
+  interface, all of it heat, split between tool and plate by the interface's flux condition
+  (delta = 1, sticking, is the paper's condition and gives its residual exactly);
+- ``traverse``: the tool travels along +x at ``U = tool.traverse_speed``, seen from the tool:
+  the ring r = R2 moves at (-U, 0) (the plate streams in on the leading side x > 0 and out on
+  the trailing side), the inflow part of the ring lets the plate carry T0 in (the Robin row
+  plus ``rho Cp max(-V.N, 0) (T - T0)``), the outflow part keeps the Robin row, and the
+  transport terms ``V . grad`` of the heat equation and the inertia carry the through-flow;
+  the tracers leave across the trailing side and re-enter on the leading side.  Needs fixed
+  points (``tracers``).  U = 0 gives the scene without it exactly.
 """
 
 EFFECT_REQUIRES = {
@@ -92,443 +109,11 @@ EFFECT_REQUIRES = {
     "robin": ("conduction",),
     "lagrangian": ("viscous",),
     "tracers": ("viscous",),
+    "slip": ("viscous",),
+    "traverse": ("viscous", "tracers"),
 }
 """Effects that need other effects (the field they act on)."""
 
-LAYOUTS = ("polar", "grid", "graded")
-EDGE_ROWS = ("flux", "half_cell")
-EDGE_SOURCES = ("point", "exponential")
-"""Temperature rows of the plate-edge points (:class:`Thermal`)."""
-SOLVER_NAMES = {"anm": "anm", "newton": "newton", "mnewton": "modified_newton"}
-"""The table of solver kinds: short name (the CLI's ``--solver``, a sweep grid's ``kind``) ->
-``solver.kind`` of a scene (:class:`SolverSpec`)."""
-SOLVER_KINDS = tuple(SOLVER_NAMES.values())
-"""The ``solver.kind`` values a scene accepts."""
-STARTS = ("rest", "quasi_static", "continuation")
-"""Flows at t = 0 (:class:`Mechanics`)."""
-MAX_POINTS = 200_000
-"""Largest point cloud a scene may ask for (about ``pi (R2 / dr)^2`` points): checked on load,
-so that a typo in ``dr`` or ``R2`` fails at once instead of exhausting memory."""
-MAX_STEPS = 10_000_000
-"""Largest number of time steps ``t_end / dt`` a scene may ask for."""
-MAX_ORDER = 30
-"""Largest ANM series order a scene may ask for (the jet series compiles in a time that grows
-steeply with the order: benchmarks/results/hard_cases.md)."""
-MAX_SAMPLES = 100_000
-"""Largest number of samples of a registration section."""
-_NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-.+")
-_COLUMN_CHARS = _NAME_CHARS - set("-.+")
-"""Characters of a probe name: a CSV column name that readers (numpy's ``genfromtxt(names=True)``
-in :mod:`jaxanm.fsw.compare`) keep as it is."""
-
-
-class SceneError(InputError):
-    """An invalid scene value or combination of options, found before any computation; the
-    message names the field, the bad value and what is allowed (a :class:`jaxanm.InputError`)."""
-
-
-def _fail(field: str, value, allowed: str):
-    raise SceneError(f"scene field {field!r} = {value!r} is invalid: {allowed}")
-
-
-def _check(field: str, value, ok: bool, allowed: str) -> None:
-    if not ok:
-        _fail(field, value, allowed)
-
-
-def _as_float(field: str, value) -> float:
-    """A finite float from an int/float (or, for overrides, its string form)."""
-    if isinstance(value, str):
-        try:
-            value = float(value)
-        except ValueError:
-            _fail(field, value, "expected a real number, e.g. 2.69e16")
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        _fail(field, value, "expected a real number")
-    try:
-        value = float(value)
-    except OverflowError:
-        _fail(field, value, "expected a finite real number (this integer is too large for a float)")
-    _check(field, value, math.isfinite(value), "expected a finite real number")
-    return value
-
-
-def _as_int(field: str, value) -> int:
-    if isinstance(value, str):
-        try:
-            value = int(value)
-        except ValueError:
-            _fail(field, value, "expected an integer")
-    if isinstance(value, bool) or not isinstance(value, int):
-        _fail(field, value, "expected an integer")
-    return int(value)
-
-
-def _as_str(field: str, value) -> str:
-    _check(field, value, isinstance(value, str), "expected a string")
-    return value
-
-
-def _as_floats(field: str, value) -> tuple:
-    """A tuple of floats from a list/tuple (or a comma-separated string)."""
-    if isinstance(value, str):
-        value = [v for v in (s.strip() for s in value.split(",")) if v]
-    _check(field, value, isinstance(value, (list, tuple)), "expected a list of real numbers")
-    return tuple(_as_float(f"{field}[{i}]", v) for i, v in enumerate(value))
-
-
-def _as_strs(field: str, value) -> tuple:
-    """A tuple of strings from a list/tuple (or a comma-separated string)."""
-    if isinstance(value, str):
-        value = [v for v in (s.strip() for s in value.split(",")) if v]
-    _check(field, value, isinstance(value, (list, tuple)), "expected a list of names")
-    return tuple(_as_str(f"{field}[{i}]", v) for i, v in enumerate(value))
-
-
-def _as_bool(field: str, value) -> bool:
-    """A bool from a bool (or, for overrides, ``true``/``false``)."""
-    if isinstance(value, str) and value.strip().lower() in ("true", "false"):
-        value = value.strip().lower() == "true"
-    _check(field, value, isinstance(value, bool), "expected true or false")
-    return value
-
-
-_CONVERTERS = {"float": _as_float, "int": _as_int, "str": _as_str, "bool": _as_bool,
-               "tuple[float, ...]": _as_floats, "tuple[str, ...]": _as_strs}
-
-
-class _Section:
-    """Base of the scene's sections: converts every field to its declared type on creation."""
-
-    _name = ""
-
-    def __post_init__(self):
-        for f in dataclasses.fields(self):
-            conv = _CONVERTERS[f.type]
-            object.__setattr__(self, f.name, conv(f"{self._name}.{f.name}", getattr(self, f.name)))
-        self._validate()
-
-    def _validate(self) -> None:
-        """Range checks of the section's own fields (overridden per section)."""
-
-    def _positive(self, *names: str) -> None:
-        for name in names:
-            value = getattr(self, name)
-            _check(f"{self._name}.{name}", value, value > 0, "must be > 0")
-
-
-@dataclasses.dataclass(frozen=True)
-class Geometry(_Section):
-    """Disc of radius R2 around a tool of radius R1, covered by points ``dr`` apart (metres).
-
-    ``layout``: ``"polar"`` (concentric rings ``dr`` apart, about ``2 pi r / dr`` points each,
-    an even number so that no point lies on y = 0) or ``"grid"`` (a square grid of spacing
-    ``dr`` clipped ``dr/2`` away from r = R1 and r = R2, plus the same boundary rings).
-    Both put points on r = R2 and a pair of coincident points on r = R1 (one on the tool side,
-    one on the plate side, see :mod:`jaxanm.fsw.geometry`).  The isothermal Couette
-    validation converges on ``polar``; on ``grid`` its error stalls (about 3e-2 omega R1 at
-    the grid points nearest the tool edge, from dr = (R2 - R1)/6 to /16).  The MLS influence radius is
-    ``h_factor * dr``; ``c`` and ``q`` are the weight parameters of paper eq. 30.
-
-    ``"graded"``: rings whose spacing follows the physics, fine across the shear
-    band at the tool edge (about ``n R1 / 2`` wide, 0.1 mm at the paper's n = 0.1324) and
-    coarse in the far field: ``dr`` is the spacing at the tool edge and across the plate's
-    fine zone ``band`` (m) beyond R1; outwards from it (and inwards from R1 into the tool, at
-    once) each ring gap is ``grading`` times the previous up to ``dr_far``; every ring holds
-    about ``2 pi r`` over its spacing points, and each point's MLS influence radius is
-    ``h_factor`` times its ring's spacing (``band``, ``dr_far`` and ``grading`` are used by
-    this layout only).  fsw_tracers' physics on 1603 graded points (dr = 0.085 mm, band 0.17
-    mm, dr_far 0.375 mm; scene ``fsw_graded``) errs in the temperature rise by 1.1-1.7 % over
-    0.05-0.3 s with ``thermal.edge_source = "exponential"`` (4.4-4.7 % with the one-point
-    source), against 12-14 % on 1727 and 9-11 % on 3369 uniform points
-    (docs/notes/spatial_accuracy.md); it is validated on fixed points only, and a scene with
-    ``lagrangian`` on it is refused.
-
-    ``rezone`` (used by the ``lagrangian`` effect only; 0 = never): the plate points are
-    re-seeded at their initial layout, and the state refitted there, once some plate point's
-    nearest neighbour comes closer than ``rezone`` times its distance at the last seeding
-    (the shear at the tool edge bunches the first rings; see :mod:`jaxanm.fsw.lagrangian`).
-    """
-
-    _name = "geometry"
-    R1: float = 1.5e-3
-    R2: float = 6e-3
-    dr: float = 3.75e-4
-    h_factor: float = 3.0
-    layout: str = "polar"
-    c: float = 0.2
-    q: int = 1
-    rezone: float = 0.0
-    band: float = 0.0
-    dr_far: float = 0.0
-    grading: float = 1.25
-
-    def _validate(self):
-        self._positive("R1", "R2", "dr", "c")
-        _check("geometry.R2", self.R2, self.R2 > self.R1, f"must exceed geometry.R1 = {self.R1}")
-        _check("geometry.dr", self.dr, self.dr <= (self.R2 - self.R1) / 2,
-               f"must be <= (R2 - R1) / 2 = {(self.R2 - self.R1) / 2:.6g} (at least one ring of "
-               f"points between tool and outer edge)")
-        smallest = self.R2 * math.sqrt(math.pi / MAX_POINTS)  # about MAX_POINTS points (no overflow)
-        _check("geometry.dr", self.dr, self.dr >= smallest,
-               f"with geometry.R2 = {self.R2} it asks for more than {MAX_POINTS} points (about "
-               f"pi (R2/dr)^2): use dr >= {smallest:.3g}")
-        _check("geometry.h_factor", self.h_factor, 1.5 <= self.h_factor <= 6.0,
-               "must be in [1.5, 6] (the paper uses 3)")
-        _check("geometry.layout", self.layout, self.layout in LAYOUTS, f"must be one of {LAYOUTS}")
-        _check("geometry.c", self.c, self.c <= 10.0, "must be in (0, 10] (weight exp(-(r/c)^(2q)), the paper uses 0.2)")
-        _check("geometry.q", self.q, 1 <= self.q <= 10, "must be an integer in [1, 10] (the paper uses 1)")
-        if self.layout == "graded":
-            _check("geometry.dr_far", self.dr_far, self.dr <= self.dr_far <= (self.R2 - self.R1) / 2,
-                   f"the graded layout's far-field spacing must be in [geometry.dr = {self.dr:.6g}, "
-                   f"(R2 - R1) / 2 = {(self.R2 - self.R1) / 2:.6g}]")
-            _check("geometry.band", self.band, 0.0 <= self.band <= min(self.R1, self.R2 - self.R1) / 2,
-                   f"the graded layout's fine zone on each side of R1 must be in [0, "
-                   f"{min(self.R1, self.R2 - self.R1) / 2:.6g}] (m)")
-            _check("geometry.grading", self.grading, 1.0 < self.grading <= 2.0,
-                   "must be in (1, 2]: the ratio of successive ring spacings of the graded layout")
-        _check("geometry.rezone", self.rezone, 0.0 <= self.rezone < 1.0,
-               "must be in [0, 1): the fraction of a plate point's seeded nearest-neighbour distance "
-               "below which the Lagrangian cloud is re-seeded (0: never; e.g. 0.9)")
-
-
-@dataclasses.dataclass(frozen=True)
-class Material(_Section):
-    """Plate material (SI): ``mu = K T^A epsbar_reg^(n-1) / 3``, ``epsbar_reg = sqrt(epsbar^2 + eps0^2)``.
-
-    K in Pa s^n K^-A (the paper's 2.69e10 N/mm^2 is 2.69e16 Pa), density ``rho``, heat
-    capacity ``Cp``, conductivity ``k``, dissipated fraction ``beta`` of the mechanical power.
-    """
-
-    _name = "material"
-    K: float = 2.69e16
-    A: float = -3.3155
-    n: float = 0.1324
-    eps0: float = 1e-2
-    rho: float = 2780.0
-    Cp: float = 920.0
-    k: float = 140.0
-    beta: float = 0.9
-
-    def _validate(self):
-        self._positive("K", "n", "eps0", "rho", "Cp", "k")
-        _check("material.n", self.n, self.n <= 2.0, "must be in (0, 2] (power-law index)")
-        _check("material.A", self.A, -20.0 <= self.A <= 20.0, "must be in [-20, 20]")
-        _check("material.beta", self.beta, 0.0 <= self.beta <= 1.0, "must be in [0, 1]")
-
-
-@dataclasses.dataclass(frozen=True)
-class Tool(_Section):
-    """Tool (steel): density, heat capacity, conductivity (SI) and rotation speed ``omega`` (rad/s)."""
-
-    _name = "tool"
-    rho: float = 7800.0
-    Cp: float = 450.0
-    k: float = 36.0
-    omega: float = 20.0
-
-    def _validate(self):
-        self._positive("rho", "Cp", "k", "omega")
-
-
-@dataclasses.dataclass(frozen=True)
-class Thermal(_Section):
-    """Robin coefficient ``h`` (W/m^2/K), ambient ``Ta`` and initial ``T0`` temperatures (K).
-
-    ``edge_rows``: the temperature rows of the plate-edge points at r = R1, one of
-    :data:`EDGE_ROWS`.  ``"flux"`` collocates the flux condition alone there (the heat
-    dissipated within half a spacing of the tool edge then never enters the discrete balance);
-    ``"half_cell"`` collocates the heat balance of the edge cell, flux condition folded in
-    (:mod:`jaxanm.fsw.physics`, docs/notes/energy_balance.md).
-
-    ``edge_source`` (``"half_cell"`` only): how that balance counts the dissipation in the plate
-    half cell ``[R1, R1 + dr/2]``, one of :data:`EDGE_SOURCES`.  ``"point"`` takes ``q(R1) dr/2``;
-    ``"exponential"`` integrates ``q`` along its local decay, measured by the MLS gradient at the
-    edge point (the source falls by e within about 0.09 mm of the tool at the paper's n, so the
-    point value over-counts once the edge spacing resolves that; docs/notes/spatial_accuracy.md).
-    """
-
-    _name = "thermal"
-    h: float = 1000.0
-    Ta: float = 300.0
-    T0: float = 300.0
-    edge_rows: str = "flux"
-    edge_source: str = "point"
-
-    def _validate(self):
-        _check("thermal.h", self.h, self.h >= 0, "must be >= 0")
-        self._positive("Ta", "T0")
-        _check("thermal.edge_rows", self.edge_rows, self.edge_rows in EDGE_ROWS, f"must be one of {EDGE_ROWS}")
-        _check("thermal.edge_source", self.edge_source, self.edge_source in EDGE_SOURCES,
-               f"must be one of {EDGE_SOURCES}")
-        _check("thermal.edge_source", self.edge_source,
-               self.edge_source == "point" or self.edge_rows == "half_cell",
-               'integrates the source of the edge half cell: needs thermal.edge_rows = "half_cell"')
-
-
-@dataclasses.dataclass(frozen=True)
-class Mechanics(_Section):
-    """Penalty factor ``lambda`` (Pa s) of ``p = -lambda tr(epsdot)`` (paper eq. 9), and the flow at t = 0.
-
-    ``start``: ``"rest"`` (the default: the plate at rest, the tool turning; the first step's
-    iteration starts there), ``"quasi_static"`` (the stationary flow the momentum rows hold
-    at T0, solved on the run's cloud before the first step by damped Newton,
-    :mod:`jaxanm.fsw.start`) or ``"continuation"`` (the same flow by the ANM's path following
-    in the strain-rate regularisation).  The
-    momentum rows are quasi-static (their inertia spins the plate up in ~1e-8 s), so both
-    describe the same physics; from rest Newton's first step does not converge on graded
-    clouds finer than 0.085 mm at the tool edge (docs/notes/start_from_rest.md).  Needs the
-    ``viscous`` effect.
-    """
-
-    _name = "mechanics"
-    penalty: float = 0.0
-    start: str = "rest"
-
-    def _validate(self):
-        _check("mechanics.penalty", self.penalty, self.penalty >= 0, "must be >= 0 (Pa s)")
-        _check("mechanics.start", self.start, self.start in STARTS,
-               f"must be one of {STARTS}: the plate at rest at t = 0, or the quasi-static flow at T0 "
-               "(by damped Newton or by continuation)")
-
-
-@dataclasses.dataclass(frozen=True)
-class Time(_Section):
-    """Implicit Euler step ``dt``, end time ``t_end`` (s) and the times at which fields are saved.
-
-    Save times after ``t_end`` are ignored (so a shortened run keeps the scene's list);
-    t = 0 and t = t_end are always saved.  ``adaptive = true``: step sizes from a local error
-    estimate (:class:`jaxanm.StepController`), ``dt`` the first step's, the local error of the
-    field values at the points below ``atol`` times their scale (omega R1 for u and v, T0 for
-    T) plus ``rtol`` times their size; a Lagrangian scene also bounds the steps by the point
-    motion (:func:`jaxanm.fsw.lagrangian.motion_dt_max`).  Both tolerances are finite, in
-    ``[0, 1)`` with ``adaptive`` and not both 0 (always ``>= 0``; unused without ``adaptive``).
-    """
-
-    _name = "time"
-    dt: float = 1e-4
-    t_end: float = 0.7
-    save: tuple[float, ...] = ()
-    adaptive: bool = False
-    rtol: float = 0.0
-    atol: float = 1e-5
-
-    def _validate(self):
-        self._positive("dt", "t_end")
-        for name in ("rtol", "atol"):
-            value = getattr(self, name)
-            _check(f"time.{name}", value, value >= 0, "must be >= 0 (0 leaves its part out of the error test)")
-            _check(f"time.{name}", value, value < 1 or not self.adaptive,
-                   "must be < 1 with time.adaptive = true: the tolerances are relative (atol to the fields' "
-                   "scales omega R1 and T0, rtol to their values), and 1 accepts an error the size of the "
-                   "field itself; e.g. 1e-5")
-        _check("time.atol", self.atol, self.rtol > 0 or self.atol > 0 or not self.adaptive,
-               "time.rtol or time.atol must be > 0 with time.adaptive = true (with both 0 the error test "
-               "accepts no step): set e.g. time.atol = 1e-5, or time.adaptive = false")
-        _check("time.dt", self.dt, self.dt <= self.t_end, f"must be <= time.t_end = {self.t_end}")
-        _check("time.dt", self.dt, self.dt * MAX_STEPS >= self.t_end,
-               f"time.t_end / time.dt asks for more than {MAX_STEPS} steps: use dt >= "
-               f"{self.t_end / MAX_STEPS:.3g} or a shorter t_end")
-        for i, s in enumerate(self.save):
-            _check(f"time.save[{i}]", s, s >= 0, "save times must be >= 0")
-
-    @property
-    def save_times(self) -> tuple:
-        """Sorted save times within [0, t_end], with 0 and t_end included."""
-        return tuple(sorted({0.0, self.t_end, *(s for s in self.save if s <= self.t_end)}))
-
-
-@dataclasses.dataclass(frozen=True)
-class SolverSpec(_Section):
-    """Nonlinear step solver: ``kind`` in ``anm | newton | modified_newton``, ``tol``; ANM ``order``,
-    ``criterion`` (``increment``: the paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`),
-    ``max_substeps``, ``adaptive`` (order-adaptive series, ``order`` the maximum), ``homotopy``
-    (``convex``: the paper's eq. 22, or ``newton``: see :class:`jaxanm.ANM`) and ``pade`` (accept
-    series through their Padé approximant, :class:`jaxanm.ANM`; needs ``order >= 3``); modified
-    Newton's ``max_rate`` (the contraction above which it rebuilds its Jacobian,
-    :class:`jaxanm.ModifiedNewton`)."""
-
-    _name = "solver"
-    kind: str = "anm"
-    order: int = 7
-    tol: float = 1e-6
-    criterion: str = "increment"
-    max_substeps: int = 50
-    adaptive: bool = False
-    homotopy: str = "convex"
-    pade: bool = False
-    max_rate: float = 0.5
-
-    def _validate(self):
-        _check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
-        _check("solver.order", self.order, 2 <= self.order <= MAX_ORDER,
-               f"must be an integer in [2, {MAX_ORDER}] (eq. 26 compares c_1 with c_p: order 1 has no "
-               "validity range; use solver.kind = 'modified_newton' for a linearised step)")
-        _check("solver.tol", self.tol, 0 < self.tol < 1, "must be in (0, 1)")
-        _check("solver.criterion", self.criterion, self.criterion in ("increment", "state"),
-               "must be 'increment' (eq. 26) or 'state'")
-        _check("solver.homotopy", self.homotopy, self.homotopy in ("convex", "newton"),
-               "must be 'convex' (the paper's eq. 22) or 'newton'")
-        _check("solver.max_substeps", self.max_substeps, self.max_substeps >= 0, "must be an integer >= 0")
-        _check("solver.pade", self.pade, not (self.pade and self.kind == "anm" and self.order < 3),
-               f"needs solver.order >= 3, got {self.order} (the Padé range compares the approximants of orders "
-               "p and p - 1; for p = 2 the lower one is the start point)")
-        _check("solver.max_rate", self.max_rate, 0 < self.max_rate < 1,
-               "must be in (0, 1): modified Newton rebuilds its Jacobian when |dx_k| / |dx_k-1| exceeds it")
-
-    def make(self):
-        """The :mod:`jaxanm` solver options object (``jaxanm.ANM``, ``Newton`` or ``ModifiedNewton``)."""
-        if self.kind == "anm":
-            return ANM(order=self.order, tol=self.tol, criterion=self.criterion, max_substeps=self.max_substeps,
-                       adaptive=self.adaptive, homotopy=self.homotopy, pade=self.pade)
-        if self.kind == "newton":
-            return Newton(tol=self.tol)
-        return ModifiedNewton(tol=self.tol, max_rate=self.max_rate)
-
-
-@dataclasses.dataclass(frozen=True)
-class Probe(_Section):
-    """A registration point ``(x, y)`` (m) in the plate, ``R1 < r < R2``, whose u, v and T a run
-    records at every step.
-
-    In a fixed-point scene (no ``lagrangian`` effect) the fields are taken at ``(x, y)``
-    itself (MLS values there, :class:`jaxanm.fsw.record.ProbeSites`): the same quantity on
-    every cloud.  In a Lagrangian scene the probe is a material point: the plate point nearest
-    ``(x, y)`` at t = 0, followed as it moves, with its own values (the paper's registration
-    points; :func:`jaxanm.fsw.record.probe_points`).  ``summary.json`` (``probe_positions``)
-    says where each probe was.  ``name``: letters, digits and ``_`` (it names the columns
-    ``<name>_u, <name>_v, <name>_T`` of ``probes.csv``), not ``t``.
-    """
-
-    _name = "probes"
-    name: str = ""
-    x: float = 0.0
-    y: float = 0.0
-
-    def _validate(self):
-        _check("probes.name", self.name, 0 < len(self.name) <= 50 and set(self.name) <= _COLUMN_CHARS
-               and self.name != "t",
-               "must be 1-50 letters, digits or '_' other than 't' (it names the probes.csv columns "
-               "<name>_u, <name>_v, <name>_T)")
-
-
-@dataclasses.dataclass(frozen=True)
-class Section(_Section):
-    """A registration section: ``samples`` points on the segment from ``start`` to ``end`` (m)."""
-
-    _name = "sections"
-    name: str = ""
-    start: tuple[float, ...] = (0.0, 0.0)
-    end: tuple[float, ...] = (0.0, 0.0)
-    samples: int = 161
-
-    def _validate(self):
-        _check("sections.name", self.name, bool(self.name), "must be a non-empty name")
-        for key in ("start", "end"):
-            _check(f"sections.{key}", getattr(self, key), len(getattr(self, key)) == 2,
-                   "must be a point [x, y]")
-        _check("sections.samples", self.samples, 2 <= self.samples <= MAX_SAMPLES,
-               f"must be an integer in [2, {MAX_SAMPLES}]")
 
 
 _SECTIONS = {"geometry": Geometry, "material": Material, "tool": Tool, "thermal": Thermal,
@@ -588,6 +173,10 @@ class Scene:
         _check("effects", self.effects, bool(have & {"viscous", "conduction"}),
                "list 'viscous' (velocity) and/or 'conduction' (temperature): without them the "
                "scene has no unknowns")
+        _check("effects", self.effects, not {"traverse", "lagrangian"} <= have,
+               "'traverse' with 'lagrangian' is not supported: the plate streaming through the disc "
+               "would carry the moving cloud out of it; use 'tracers' (fixed points, the plate's "
+               "material points enter and leave) instead of 'lagrangian'")
         for e in self.effects:
             missing = [r for r in EFFECT_REQUIRES.get(e, ()) if r not in have]
             _check("effects", self.effects, not missing,
@@ -600,6 +189,21 @@ class Scene:
                "'lagrangian' on geometry.layout = 'graded' is not supported yet: the graded cloud is "
                "validated on fixed points only (its rezoning and the tool edge sliding past the fine "
                "rings are untested); use 'tracers' instead of 'lagrangian', or layout 'polar'")
+        self._validate_contact(have)
+
+    def _validate_contact(self, have: set):
+        """The tool's contact state and travel need their effects, and fixed points."""
+        tl = self.tool
+        _check("tool.contact_state", tl.contact_state, tl.contact_state == 1.0 or "slip" in have,
+               "differs from 1 (sticking) but the scene does not list the 'slip' effect: add 'slip' to "
+               "effects, or leave tool.contact_state = 1")
+        _check("tool.traverse_speed", tl.traverse_speed, tl.traverse_speed == 0.0 or "traverse" in have,
+               "differs from 0 but the scene does not list the 'traverse' effect: add 'traverse' (and "
+               "'tracers') to effects, or leave tool.traverse_speed = 0")
+        _check("effects", self.effects, not ("slip" in have and "lagrangian" in have),
+               "'slip' with 'lagrangian' is not supported: the plate edge would turn slower than the "
+               "tool edge, separating the coincident interface pairs the moving cloud needs; use "
+               "'tracers' (fixed points) instead of 'lagrangian'")
 
     def _validate_places(self):
         g = self.geometry

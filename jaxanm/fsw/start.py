@@ -98,7 +98,7 @@ def _damped_newton(problem: Problem, x, args: tuple, tol: float, max_iter: int):
     r = problem.residual(x, *args)
     lengths, norms = [], [float(np.linalg.norm(r))]
     for it in range(1, max_iter + 1):
-        dx = -factorize(problem.tangent(x, *args), problem.stats).solve(r)
+        dx = -problem.solve(factorize(problem.tangent(x, *args), problem.stats), r)
         found = _line_search(problem, x, dx, norms[-1], args)
         if found is None:
             raise StepFailure(f"the quasi-static start flow: no step along Newton's direction reduces the "
@@ -112,6 +112,14 @@ def _damped_newton(problem: Problem, x, args: tuple, tol: float, max_iter: int):
     raise StepFailure(f"the quasi-static start flow did not converge in {max_iter} iterations "
                       f"(|R|_2 = {norms[-1]:.3g}, last step length {lengths[-1]:g})", step=0, t=0.0,
                       residual_norm=norms[-1])
+
+
+def flow_scene(scene):
+    """The scene of the stationary flow rows: ``viscous`` alone, with the tool's kinematics
+    kept (``slip``: the plate edge at delta omega; ``traverse``: the ring at (-U, 0), which
+    needs ``tracers``; neither adds a term to the stationary momentum rows)."""
+    kept = [e for e in ("slip", "traverse", "tracers") if scene.has(e) and (e != "tracers" or scene.has("traverse"))]
+    return scene.with_overrides({"effects": ",".join(["viscous", *kept])})
 
 
 @entry_point
@@ -128,7 +136,7 @@ def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_ite
     The report's ``stats.wall_time_s`` is the whole start, compilation included.
     """
     began = time.perf_counter()
-    flow = make_model(scene.with_overrides({"effects": "viscous"}), model.cloud)
+    flow = make_model(flow_scene(scene), model.cloud)
     params = flow.params(model.cloud.points, stencils)
     problem = Problem(flow.residual, flow.scale(), Stats(), "sparse", flow.sparsity)
     rest = flow.initial_state(model.cloud.points)
@@ -171,7 +179,7 @@ def continuation_state(scene, model: Model, stencils, order: int = 15, tol: floa
     lengths in lam, ``residual_norms`` ``|R|_inf`` at the step ends.
     """
     began = time.perf_counter()
-    flow = make_model(scene.with_overrides({"effects": "viscous"}), model.cloud)
+    flow = make_model(flow_scene(scene), model.cloud)
     params = flow.params(model.cloud.points, stencils)
     rest = flow.initial_state(model.cloud.points)
     params["rest"] = rest

@@ -264,7 +264,8 @@ def temperature_maps(result, times: list[float | None], number: int) -> Figure:
 
 
 def paper_figures(result) -> list[tuple[str, Callable[[], Figure]]]:
-    """The paper's figures as ``(file name, builder)`` pairs; a builder may raise :class:`FigureSkipped`."""
+    """The paper's figures as ``(file name, builder)`` pairs, and those of a travelling tool
+    (:mod:`jaxanm.fsw.io.weld_figures`); a builder may raise :class:`FigureSkipped`."""
     specs = [
         ("fig02_velocity_history.png", lambda: fig02_velocity_history(result)),
         ("fig03_temperature_history.png", lambda: fig03_temperature_history(result)),
@@ -278,4 +279,6 @@ def paper_figures(result) -> list[tuple[str, Callable[[], Figure]]]:
         ("fig10_temperature_maps.png", lambda: temperature_maps(result, [0.001, None], 10)),
         ("fig11_temperature_maps.png", lambda: temperature_maps(result, [0.05, 0.08], 11)),
     ]
-    return specs
+    from .weld_figures import weld_figures  # (it builds on this module's helpers)
+
+    return specs + weld_figures(result)
