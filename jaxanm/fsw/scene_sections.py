@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 from ..errors import InputError
-from .._solver import ANM, ModifiedNewton, Newton
+from .._solver import make_solver, solver_kinds
 
 __all__ = [
     "EDGE_ROWS",
@@ -44,9 +45,12 @@ LAYOUTS = ("polar", "grid", "graded")
 EDGE_ROWS = ("flux", "half_cell")
 EDGE_SOURCES = ("point", "exponential")
 """Temperature rows of the plate-edge points (:class:`Thermal`)."""
-SOLVER_NAMES = {"anm": "anm", "newton": "newton", "mnewton": "modified_newton"}
-"""The table of solver kinds: short name (the CLI's ``--solver``, a sweep grid's ``kind``) ->
-``solver.kind`` of a scene (:class:`SolverSpec`)."""
+_SCENE_KIND = {"mnewton": "modified_newton"}
+"""A registered solver kind whose scenes spell it out (the file format keeps its longer name)."""
+SOLVER_NAMES = {kind: _SCENE_KIND.get(kind, kind) for kind in solver_kinds()}
+"""The table of solver kinds: registered kind (:func:`jaxanm.solver_kinds`: the CLI's
+``--solver``, a sweep grid's ``kind``) -> ``solver.kind`` of a scene (:class:`SolverSpec`).  A
+solver added to ``jaxanm/_solver/`` appears here by its kind."""
 SOLVER_KINDS = tuple(SOLVER_NAMES.values())
 """The ``solver.kind`` values a scene accepts."""
 STARTS = ("rest", "quasi_static", "continuation")
@@ -401,13 +405,16 @@ class Time(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class SolverSpec(_Section):
-    """Nonlinear step solver: ``kind`` in ``anm | newton | modified_newton``, ``tol``; ANM ``order``,
-    ``criterion`` (``increment``: the paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`),
-    ``max_substeps``, ``adaptive`` (order-adaptive series, ``order`` the maximum), ``homotopy``
-    (``convex``: the paper's eq. 22, or ``newton``: see :class:`jaxanm.ANM`) and ``pade`` (accept
-    series through their Padé approximant, :class:`jaxanm.ANM`; needs ``order >= 3``); modified
-    Newton's ``max_rate`` (the contraction above which it rebuilds its Jacobian,
-    :class:`jaxanm.ModifiedNewton`)."""
+    """Nonlinear step solver: ``kind`` (a registered kind, ``anm | newton | modified_newton``) and
+    the options of that kind's solver, each passed on only to a solver that takes it and
+    validated by the solver itself: ``tol``; ANM ``order``, ``criterion`` (``increment``: the
+    paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`), ``max_substeps``, ``adaptive``
+    (order-adaptive series, ``order`` the maximum), ``homotopy`` (``convex``: the paper's eq. 22,
+    or ``newton``: see :class:`jaxanm.ANM`) and ``pade`` (accept series through their Padé
+    approximant, :class:`jaxanm.ANM`); the Newton solvers' ``max_iter`` (0: the solver's own
+    default) and modified Newton's ``max_rate`` (the contraction above which it rebuilds its
+    Jacobian, :class:`jaxanm.ModifiedNewton`).  The scene adds one rule of its own: ``order`` at
+    most :data:`MAX_ORDER`."""
 
     _name = "solver"
     kind: str = "anm"
@@ -418,33 +425,36 @@ class SolverSpec(_Section):
     adaptive: bool = False
     homotopy: str = "convex"
     pade: bool = False
+    max_iter: int = 0
     max_rate: float = 0.5
 
     def _validate(self):
         _check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
-        _check("solver.order", self.order, 2 <= self.order <= MAX_ORDER,
-               f"must be an integer in [2, {MAX_ORDER}] (eq. 26 compares c_1 with c_p: order 1 has no "
-               "validity range; use solver.kind = 'modified_newton' for a linearised step)")
-        _check("solver.tol", self.tol, 0 < self.tol < 1, "must be in (0, 1)")
-        _check("solver.criterion", self.criterion, self.criterion in ("increment", "state"),
-               "must be 'increment' (eq. 26) or 'state'")
-        _check("solver.homotopy", self.homotopy, self.homotopy in ("convex", "newton"),
-               "must be 'convex' (the paper's eq. 22) or 'newton'")
-        _check("solver.max_substeps", self.max_substeps, self.max_substeps >= 0, "must be an integer >= 0")
-        _check("solver.pade", self.pade, not (self.pade and self.kind == "anm" and self.order < 3),
-               f"needs solver.order >= 3, got {self.order} (the Padé range compares the approximants of orders "
-               "p and p - 1; for p = 2 the lower one is the start point)")
-        _check("solver.max_rate", self.max_rate, 0 < self.max_rate < 1,
-               "must be in (0, 1): modified Newton rebuilds its Jacobian when |dx_k| / |dx_k-1| exceeds it")
+        _check("solver.order", self.order, self.order <= MAX_ORDER,
+               f"must be at most {MAX_ORDER}: the jet series compiles in a time that grows steeply with the order")
+        _check("solver.max_iter", self.max_iter, self.max_iter >= 0,
+               "must be an integer >= 0 (0: the solver's own default)")
+        try:
+            self.make()
+        except InputError as exc:  # the solver's own check: name the scene's key
+            named = re.match(r"\w+\.(\w+)", str(exc))  # the solver's messages start "ANM.order ..."
+            field = named.group(1) if named and named.group(1) in self.options() else "kind"
+            _fail(f"solver.{field}", getattr(self, field), str(exc))
+
+    def options(self) -> dict:
+        """The fields the kind's solver takes, as its keyword arguments (``max_iter`` = 0 left out:
+        the solver's default)."""
+        kind = {v: k for k, v in SOLVER_NAMES.items()}[self.kind]
+        taken = {f.name for f in dataclasses.fields(make_solver(kind))}
+        opts = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name in taken}
+        if opts.get("max_iter") == 0:
+            del opts["max_iter"]
+        return opts
 
     def make(self):
-        """The :mod:`jaxanm` solver options object (``jaxanm.ANM``, ``Newton`` or ``ModifiedNewton``)."""
-        if self.kind == "anm":
-            return ANM(order=self.order, tol=self.tol, criterion=self.criterion, max_substeps=self.max_substeps,
-                       adaptive=self.adaptive, homotopy=self.homotopy, pade=self.pade)
-        if self.kind == "newton":
-            return Newton(tol=self.tol)
-        return ModifiedNewton(tol=self.tol, max_rate=self.max_rate)
+        """The :mod:`jaxanm` solver of this kind with these options (e.g. ``jaxanm.ANM``), built by
+        :func:`jaxanm.make_solver`, which validates them."""
+        return make_solver({v: k for k, v in SOLVER_NAMES.items()}[self.kind], **self.options())
 
 
 @dataclasses.dataclass(frozen=True)
