@@ -154,6 +154,9 @@ class MovingRecorder(Recorder):
     moving cloud, material points and tracers with what their rebuilds carry from step to step
     (neighbour candidates, the refit's factorisation), checkpointed with it."""
 
+    CHECKPOINTED = Recorder.CHECKPOINTED + ("width", "markers", "seeded_spacing", "neighbours", "marker_neighbours",
+                                            "tracer_neighbours", "refit", "tracer_velocity")
+
     def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_times: frozenset,
                  initial: np.ndarray | None = None, start: StartReport | None = None):
         super().__init__(scene, model, stencils, x0, save_times, initial=initial, start=start)

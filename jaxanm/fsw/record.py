@@ -152,6 +152,13 @@ class Recorder:
     The state at t = 0 is recorded on construction.
     """
 
+    CHECKPOINT_VERSION = 1
+    """Version of the layout :meth:`to_checkpoint` writes; another version is refused on resume."""
+    CHECKPOINTED: tuple[str, ...] = ("points", "t", "probes", "saved", "sections", "tracers", "tracer_saves",
+                                     "rezone_times", "start")
+    """The attributes a run changes, stored in checkpoints; the others (the scene, model, save
+    times, probe sites and section points) are made again from the scene on resume."""
+
     def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_times: frozenset,
                  initial: np.ndarray | None = None, start: StartReport | None = None):
         self.scene, self.model, self.save_times = scene, model, save_times
@@ -178,6 +185,25 @@ class Recorder:
         full = model.full_values(initial)
         self._record(0.0, self.points, full, save=True,
                      probes=self._at_probes(self.points, full, None if from_rest else x0))
+
+    def to_checkpoint(self) -> dict:
+        """The run state of the recorder, ``{"version": CHECKPOINT_VERSION, name: value}`` for
+        each name of :data:`CHECKPOINTED` (plain data, numpy arrays and the stencil helpers'
+        state, pickled with the run's checkpoint)."""
+        return {"version": self.CHECKPOINT_VERSION, **{name: getattr(self, name) for name in self.CHECKPOINTED}}
+
+    def from_checkpoint(self, stored: dict) -> None:
+        """Continue from what :meth:`to_checkpoint` stored; :class:`jaxanm.InputError` for
+        another layout version or a missing entry (the checkpoint then cannot resume this run)."""
+        version = stored.get("version") if isinstance(stored, dict) else None
+        if version != self.CHECKPOINT_VERSION:
+            raise jaxanm.InputError(f"the checkpoint's recorder has layout version {version!r}, this jaxanm reads "
+                                    f"{self.CHECKPOINT_VERSION}: start the run afresh")
+        missing = [name for name in self.CHECKPOINTED if name not in stored]
+        if missing:
+            raise jaxanm.InputError(f"the checkpoint's recorder lacks {', '.join(missing)}: start the run afresh")
+        for name in self.CHECKPOINTED:
+            setattr(self, name, stored[name])
 
     def _at_probes(self, positions: np.ndarray, values: dict, state=None) -> dict:
         """``{"x", "y", "u", "v", "T": (P,)}`` at the probes in one step.

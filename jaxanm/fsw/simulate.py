@@ -53,30 +53,24 @@ def step_controller(scene: Scene, model: Model):
         error_map=lambda x, p: model.values(x, p["st"])[:, measured].T.ravel(), error_scale=scale)
 
 
-_HOST_INPUTS = ("scene", "model")
-"""Recorder attributes rebuilt from the scene on resume (everything else is checkpointed)."""
-
-
 def _host_state(scene: Scene, recorder: MovingRecorder, settings: dict):
     """The ``(get, set)`` pair :func:`jaxanm.integrate` stores in / restores from its checkpoints.
 
-    The snapshot is ``{"scene": scene.to_dict(), "settings": settings, "recorder": {...}}`` where
-    the recorder part holds every attribute of the recorder except the scene and model (moving
-    points, time, probe histories, saved fields, sections, tracers); pickled as is.
-    ``set`` refuses a checkpoint written for another scene (:class:`jaxanm.InputError` naming
-    the differing fields).
+    The snapshot is ``{"scene": scene.to_dict(), "settings": settings, "recorder":
+    recorder.to_checkpoint()}`` (the recorder's versioned layout: moving points, time, probe
+    histories, saved fields, sections, tracers).  ``set`` refuses a checkpoint written for
+    another scene (:class:`jaxanm.InputError` naming the differing fields) or with another
+    recorder layout.
     """
     def get():
-        return {"scene": scene.to_dict(), "settings": dict(settings),
-                "recorder": {k: v for k, v in vars(recorder).items() if k not in _HOST_INPUTS}}
+        return {"scene": scene.to_dict(), "settings": dict(settings), "recorder": recorder.to_checkpoint()}
 
     def set_(state):
         stored = state.get("scene") if isinstance(state, dict) else None
         if stored != scene.to_dict():
             raise jaxanm.InputError(f"the checkpoint was written for another scene ({scene_differences(stored, scene)} "
                                     "differ); resume with the scene it stores, or start afresh")
-        for key, value in state["recorder"].items():
-            setattr(recorder, key, value)
+        recorder.from_checkpoint(state["recorder"])
 
     return get, set_
 
