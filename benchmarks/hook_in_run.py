@@ -3,7 +3,7 @@
 ``benchmarks/profile_host_step.py`` times each part of one hook call many times on the same
 state; this script times the hook and its main parts at every step of an actual run, where
 the solver's series and triangular solves run between two hooks (and take the caches).  It
-wraps, for the run only, the hook (``MovingRecorder.after_step``), the stencil rebuild (and
+wraps, for the run only, the hook (``RunRecorder.after_step``), the stencil rebuild (and
 inside it the MLS kernel and the neighbour query), the refit (``Model.fit_state``), the field
 values and the shear test, and prints median and mean wall time per call.
 
@@ -26,9 +26,9 @@ from jaxanm import mls
 from jaxanm.fsw import discretisation, lagrangian, load_scene, run
 
 PARTS = [  # (owner, attribute, label); indented labels are parts of the row above
-    (lagrangian.MovingRecorder, "after_step", "hook (after_step)"),
+    (lagrangian.RunRecorder, "after_step", "hook (after_step)"),
     (discretisation.Model, "values", "  values at the points"),
-    (lagrangian.MovingRecorder, "_sheared", "  shear test"),
+    (lagrangian.RunRecorder, "_sheared", "  shear test"),
     (lagrangian, "build_stencils", "  stencil rebuild"),
     (mls.NeighbourList, "query", "    neighbour query"),
     (mls, "_run_kernel", "    MLS kernel"),

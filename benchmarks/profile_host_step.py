@@ -1,6 +1,6 @@
 """Profile of the host work of one Lagrangian ``fsw_paper`` step (issue 14, item 1).
 
-The host work is :meth:`jaxanm.fsw.lagrangian.MovingRecorder.after_step`: field values at the points,
+The host work is :meth:`jaxanm.fsw.lagrangian.RunRecorder.after_step`: field values at the points,
 probes, moving the points, the shear test, the stencil rebuild and the refit of the state.
 This script
 
@@ -40,7 +40,7 @@ from jaxanm.fsw.geometry import _apart
 
 try:  # the hook's module since issue 17's split of fsw/
     from jaxanm.fsw import lagrangian as sim
-    Hook = sim.MovingRecorder
+    Hook = sim.RunRecorder
 except ImportError:  # an older checkout: the hook was simulate._Recorder
     from jaxanm.fsw import simulate as sim
     Hook = sim._Recorder

@@ -19,7 +19,7 @@ import pytest
 from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.geometry import PLATE, rigid
 from jaxanm.fsw.io.output import probe_positions
-from jaxanm.fsw.lagrangian import MovingRecorder
+from jaxanm.fsw.lagrangian import RunRecorder
 from jaxanm.fsw.record import ProbeSites, probe_points
 from jaxanm.fsw.scene import Geometry, Probe, Scene
 
@@ -42,7 +42,7 @@ def _field(points: np.ndarray) -> dict:
 def _recorder(scene: Scene):
     """A run's recorder on ``scene`` at t = 0 (from rest), and what it runs on."""
     cloud, stencils, model, params, x0 = discretise(scene)
-    return MovingRecorder(scene, model, stencils, x0, frozenset()), cloud, model, params
+    return RunRecorder(scene, model, stencils, x0, frozenset()), cloud, model, params
 
 
 def _state(model, points) -> np.ndarray:

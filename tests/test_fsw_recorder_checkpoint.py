@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 import jaxanm
-from jaxanm.fsw.lagrangian import MovingRecorder
+from jaxanm.fsw.lagrangian import RunRecorder
 from jaxanm.fsw.record import Recorder
 
 
@@ -17,20 +17,20 @@ def _bare(cls):
 
 
 def test_the_layout_names_each_stored_attribute_and_its_version():
-    rec = _bare(MovingRecorder)
-    for i, name in enumerate(MovingRecorder.CHECKPOINTED):
+    rec = _bare(RunRecorder)
+    for i, name in enumerate(RunRecorder.CHECKPOINTED):
         setattr(rec, name, ("value", i))
     stored = rec.to_checkpoint()
     assert stored["version"] == Recorder.CHECKPOINT_VERSION
-    assert set(stored) == {"version", *MovingRecorder.CHECKPOINTED}
-    assert set(Recorder.CHECKPOINTED) < set(MovingRecorder.CHECKPOINTED)  # the moving cloud's state besides
-    other = _bare(MovingRecorder)
+    assert set(stored) == {"version", *RunRecorder.CHECKPOINTED}
+    assert set(Recorder.CHECKPOINTED) < set(RunRecorder.CHECKPOINTED)  # the moving cloud's state besides
+    other = _bare(RunRecorder)
     other.from_checkpoint(stored)
-    assert all(getattr(other, name) == ("value", i) for i, name in enumerate(MovingRecorder.CHECKPOINTED))
+    assert all(getattr(other, name) == ("value", i) for i, name in enumerate(RunRecorder.CHECKPOINTED))
 
 
 def test_another_version_or_a_missing_entry_is_refused_with_the_fix():
-    rec = _bare(MovingRecorder)
+    rec = _bare(RunRecorder)
     with pytest.raises(jaxanm.InputError, match=r"layout version 0, this jaxanm reads 1: start the run afresh"):
         rec.from_checkpoint({"version": 0})
     with pytest.raises(jaxanm.InputError, match=r"lacks points, t, .*start the run afresh"):

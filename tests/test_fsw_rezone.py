@@ -16,7 +16,7 @@ from jaxanm.fsw import load_scene, run
 from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, build_stencils
 from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.scene import SceneError
-from jaxanm.fsw.lagrangian import MovingRecorder
+from jaxanm.fsw.lagrangian import RunRecorder
 
 
 @pytest.mark.parametrize("value", ["1.0", "-0.1", "1.5"])
@@ -34,7 +34,7 @@ def _quadratic(points):
 def test_rezone_reseeds_the_plate_and_remaps_a_quadratic_field_exactly():
     scene = load_scene("fsw_small").with_overrides({"geometry.rezone": "0.9"})
     cloud, stencils, model, _, x0 = discretise(scene)
-    rec = MovingRecorder(scene, model, stencils, x0, save_times=frozenset())
+    rec = RunRecorder(scene, model, stencils, x0, save_times=frozenset())
     # a sheared cloud: plate points displaced by up to 0.2 dr, the tool turned by 0.3 rad
     rng = np.random.default_rng(3)
     sheared = cloud.points.copy()

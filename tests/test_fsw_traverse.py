@@ -134,13 +134,13 @@ def test_tracers_leaving_the_disc_reenter_on_the_leading_side_at_their_height():
     its carried polar velocity that of the inflow (-U, 0) there; the others are untouched."""
     import types
 
-    from jaxanm.fsw.lagrangian import MovingRecorder
+    from jaxanm.fsw.lagrangian import RunRecorder
 
     scene = load_scene("fsw_weld")
     R2, U = scene.geometry.R2, scene.tool.traverse_speed
     free = np.array([[-R2 * 1.001, 0.3 * R2], [0.5 * R2, -0.2 * R2], [-0.2 * R2, -R2 * 1.0005]])
     host = types.SimpleNamespace(scene=scene, tracer_velocity=np.ones((3, 2)))
-    moved = MovingRecorder._reentered(host, free)
+    moved = RunRecorder._reentered(host, free)
     for i, y in ((0, 0.3 * R2), (2, -R2)):
         assert moved[i, 1] == y and moved[i, 0] == pytest.approx(math.sqrt(R2 * R2 - y * y), abs=1e-15)
     assert np.array_equal(moved[1], free[1]) and np.array_equal(host.tracer_velocity[1], [1.0, 1.0])

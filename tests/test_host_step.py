@@ -12,7 +12,7 @@ from jaxanm import mls
 from jaxanm.fsw import discretise, load_scene
 from jaxanm.fsw.geometry import PLATE, _apart, build_stencils, neighbour_list
 from jaxanm.fsw.discretisation import Refit
-from jaxanm.fsw.lagrangian import MovingRecorder, _rotate
+from jaxanm.fsw.lagrangian import RunRecorder, _rotate
 
 
 def _scene():
@@ -112,7 +112,7 @@ def test_refit_iterations_give_the_direct_fit_and_pickle_exactly():
 def test_shear_test_from_the_stencils_agrees_with_the_kdtree():
     scene = load_scene("fsw_small").with_overrides({"geometry.rezone": "0.9"})
     cloud, stencils, model, _, x0 = discretise(scene)
-    rec = MovingRecorder(scene, model, stencils, x0, save_times=frozenset())
+    rec = RunRecorder(scene, model, stencils, x0, save_times=frozenset())
     for amount in (0.02, 0.3):
         rec.points = _sheared_cloud(cloud, scene.geometry.dr, amount=amount)
         st = build_stencils(rec.points, cloud.n_tool, scene.geometry, m_max=rec.width)

@@ -1,4 +1,4 @@
-"""Lagrangian motion of an FSW run, the host hook after every accepted step (:class:`MovingRecorder`).
+"""Lagrangian motion of an FSW run, the host hook after every accepted step (:class:`RunRecorder`).
 
 - evaluates the fields at the points and records them (:class:`~jaxanm.fsw.record.Recorder`);
 - with ``lagrangian``: moves the points (tool and tool-edge points rotate rigidly by
@@ -13,7 +13,7 @@
 - with ``lagrangian`` and ``geometry.rezone > 0``: when the cloud has sheared too far (some
   plate point's nearest neighbour is closer than ``rezone`` times its distance at the last
   seeding), re-seeds the plate points at their initial layout, with the values the current
-  solution has there (:meth:`MovingRecorder._rezone`).  From the first rezoning on, the
+  solution has there (:meth:`RunRecorder._rezone`).  From the first rezoning on, the
   computational points (``nodes``) and the material points (``points``, which carry the colours
   and the probes) differ: the material points are then advected like tracers, through the
   moving cloud.
@@ -40,7 +40,7 @@ from .record import Recorder
 from .scene import Scene
 from .start import StartReport
 
-__all__ = ["MovingRecorder", "advect", "motion_dt_max"]
+__all__ = ["RunRecorder", "advect", "motion_dt_max"]
 
 
 def _rotate(points: np.ndarray, angle: float) -> np.ndarray:
@@ -149,10 +149,12 @@ def _nearest_spacing(points: np.ndarray) -> np.ndarray:
     return cKDTree(points).query(points, 2)[0][:, 1]
 
 
-class MovingRecorder(Recorder):
-    """Host-side state of a run: the :class:`~jaxanm.fsw.record.Recorder`'s records, and the
-    moving cloud, material points and tracers with what their rebuilds carry from step to step
-    (neighbour candidates, the refit's factorisation), checkpointed with it."""
+class RunRecorder(Recorder):
+    """The host side of every FSW run, fixed cloud or moving: the
+    :class:`~jaxanm.fsw.record.Recorder`'s records and, as the scene's effects ask, the moving
+    cloud (``lagrangian``: motion, rezoning, refits), the material points and the tracers, with
+    what their rebuilds carry from step to step (neighbour candidates, the refit's
+    factorisation), checkpointed with it."""
 
     CHECKPOINTED = Recorder.CHECKPOINTED + ("width", "markers", "seeded_spacing", "neighbours", "marker_neighbours",
                                             "tracer_neighbours", "refit", "tracer_velocity")

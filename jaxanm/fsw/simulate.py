@@ -18,7 +18,7 @@ from typing import Callable
 import jaxanm
 
 from .discretisation import Model, discretise
-from .lagrangian import MovingRecorder, motion_dt_max
+from .lagrangian import RunRecorder, motion_dt_max
 from .record import FSWResult
 from .scene import Scene
 from .stability import TemperatureGuard
@@ -53,7 +53,7 @@ def step_controller(scene: Scene, model: Model):
         error_map=lambda x, p: model.values(x, p["st"])[:, measured].T.ravel(), error_scale=scale)
 
 
-def _host_state(scene: Scene, recorder: MovingRecorder, settings: dict):
+def _host_state(scene: Scene, recorder: RunRecorder, settings: dict):
     """The ``(get, set)`` pair :func:`jaxanm.integrate` stores in / restores from its checkpoints.
 
     The snapshot is ``{"scene": scene.to_dict(), "settings": settings, "recorder":
@@ -137,7 +137,7 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     controller = step_controller(scene, model)
     saveat = jaxanm.SaveAt(ts=[t for t in tm.save_times if t > 0])
     save_times = saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None)
-    recorder = MovingRecorder(scene, model, stencils, x0, save_times, initial=initial, start=start)
+    recorder = RunRecorder(scene, model, stencils, x0, save_times, initial=initial, start=start)
     latest = {"stats": jaxanm.Stats()}
     # a temperature outside the range the continuum keeps it in ends the run, named
     guard = TemperatureGuard.for_model(model, params, x0)
