@@ -17,7 +17,6 @@ from pathlib import Path
 import meshio
 import numpy as np
 import pytest
-from matplotlib.tri import Triangulation
 
 from jaxanm.fsw.io import figures, output
 from jaxanm.fsw.record import FSWResult
@@ -100,7 +99,20 @@ def fake_result(saved=SAVED, isothermal=False, n_steps=71) -> FSWResult:
                   residual_norm=[1e-9] * (n_steps - 1))
     stats.close(1.25)
     return FSWResult(FakeScene(), t, np.array(pts), np.array(u), np.array(v), T, material,
-                      probes, None, stats, FakeSolver())
+                      probes, recorded_sections(t, isothermal), stats, FakeSolver())
+
+
+def recorded_sections(t, isothermal=False, samples=161):
+    """Sections A-A (y = 0) and B-B (x = 0) as a run records them (``FSWResult.sections``), here
+    the exact fields at the samples: u = -Omega(r) y, v = Omega(r) x, T(r, t)."""
+    line = np.linspace(-R2, R2, samples)
+    out = {"t": np.asarray(t, dtype=np.float64)}
+    for name, (x, y) in {"A-A": (line, 0 * line), "B-B": (0 * line, line)}.items():
+        w = angular_velocity(np.hypot(x, y))
+        T = [np.full(samples, 300.0) if isothermal else temperature(np.hypot(x, y), ts) for ts in t]
+        out[name] = {"x": x, "y": y, "s": line + R2, "u": np.tile(-w * y, (len(t), 1)),
+                     "v": np.tile(w * x, (len(t), 1)), "T": np.array(T)}
+    return out
 
 
 ALL_FIGURES = [name for name, _ in figures.paper_figures(fake_result())]
@@ -167,7 +179,8 @@ def test_summary_json(written):
     assert set(s["stats"]["wall_time"]) == {"jacobian", "factorize", "series", "solve", "other"}
     assert "amax" not in s["stats"]  # the per-step lists are in steps.json
     steps = json.loads((out / "steps.json").read_text())
-    assert len(steps["amax"]) == res.stats.time_steps and set(steps) == {"amax", "orders", "residual_norm", "step_sizes"}
+    assert len(steps["amax"]) == res.stats.time_steps
+    assert set(steps) == {"amax", "orders", "residual_norm", "step_sizes"}
     assert s["probes_final"]["p1"]["v"] == float(res.probes["p1"]["v"][-1])
     assert set(s["probes_final"]["p1"]) == {"x", "y", "u", "v", "T"}
 
@@ -274,87 +287,28 @@ def test_failed_vtu_write_leaves_no_temporaries(tmp_path, monkeypatch):
     assert leftovers(tmp_path) == [] and list((tmp_path / "vtu").iterdir()) == []
 
 
-def interpolation_bounds(pts, xq, yq, t):
-    """Per-sample bounds on |L f - f| for the linear interpolation on the cloud's triangles.
-
-    ``figures.section`` interpolates linearly on the Delaunay triangulation of the points; which
-    diagonal splits a cell of the tool's rotated square grid (four co-circular points) depends
-    on the last bits of the positions, so the bound is taken on the triangle that holds each
-    sample, whichever it is.  With barycentric weights lam_i of the sample q in its triangle
-    V_0 V_1 V_2, sum_i lam_i (V_i - q) = 0 removes the gradient from a Taylor expansion at q:
-    |L f(q) - f(q)| <= M/2 sum_i lam_i |V_i - q|^2, M a bound on the Hessian's norm over the
-    triangle (r from r_min, the triangle's distance to the centre, to r_max, its farthest vertex):
-      T = 300 + A exp(-r^2/R1^2): M = A e^(-r_min^2/R1^2) max(2, 4 r_max^2/R1^2 - 2) / R1^2;
-      u, v outside R1 = C R2^2 (-y, x) / r^2 - C (-y, x), C = Omega R1^2 / (R2^2 - R1^2): x/r^2
-      and y/r^2 are harmonic with Hessian norm 2/r^3, so M = 2 C R2^2 / r_min^3;
-      u, v inside R1 are linear (rigid rotation): L f = f.
-    A triangle cut by r = R1 meets the kink of Omega(r): there h = f - Omega (-y, x), zero
-    inside R1, has the same interpolation error, at most sum_i lam_i |h(V_i)| + |h(q)|.
-    Round-off: the plane through the three values has coefficients off by ~eps kappa^2 max|f|
-    / diam (kappa = diam^2 / (2 area)), evaluated at |q|: 16 eps kappa^2 (1 + |q|/diam) max|f|.
-    Returns a dict of bounds for u, v, T at the samples.
-    """
-    tri = Triangulation(pts[:, 0], pts[:, 1])
-    index = tri.get_trifinder()(xq, yq)
-    assert np.all(index >= 0)
-    V = pts[tri.triangles[index]]  # (n, 3, 2)
-    q = np.column_stack([xq, yq])
-    M = np.concatenate([V.transpose(0, 2, 1), np.ones((len(q), 1, 3))], axis=1)
-    lam = np.linalg.solve(M, np.column_stack([q, np.ones(len(q))])[..., None])[..., 0]
-    lam = np.clip(lam, 0.0, 1.0)
-    spread = np.einsum("ni,ni->n", lam, np.sum((V - q[:, None]) ** 2, axis=2))
-
-    def segment_distance(a, b):
-        ab = b - a
-        s = np.clip(-np.einsum("ni,ni->n", a, ab) / np.einsum("ni,ni->n", ab, ab), 0.0, 1.0)
-        return np.hypot(*(a + s[:, None] * ab).T)
-
-    centre = np.linalg.solve(M, np.tile([0.0, 0.0, 1.0], (len(q), 1))[..., None])[..., 0]
-    to_edges = np.min([segment_distance(V[:, i], V[:, i - 1]) for i in range(3)], axis=0)
-    r_min = np.where(np.all(centre >= 0, axis=1), 0.0, to_edges)
-    r_max = np.hypot(V[..., 0], V[..., 1]).max(axis=1)
-    edges = np.hypot(*(V - np.roll(V, 1, axis=1)).transpose(2, 0, 1))
-    diam = edges.max(axis=1)
-    e1, e2 = V[:, 1] - V[:, 0], V[:, 2] - V[:, 0]
-    kappa = diam**2 / np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-    round_off = 16 * np.finfo(np.float64).eps * kappa**2 * (1 + np.hypot(xq, yq) / diam)
-
-    A = 60.0 * t / 0.7
-    hess_T = A * np.exp(-(r_min / R1) ** 2) * np.maximum(2.0, 4 * (r_max / R1) ** 2 - 2.0) / R1**2
-    bounds = {"T": 0.5 * hess_T * spread + round_off * temperature(0.0, t)}
-    C = OMEGA * R1**2 / (R2**2 - R1**2)
-    smooth = C * R2**2 * spread / np.maximum(r_min, R1) ** 3
-
-    def excess(P, axis):  # |h| of the component u (axis 1: -y) or v (axis 0: x)
-        return np.abs((angular_velocity(np.hypot(P[..., 0], P[..., 1])) - OMEGA) * P[..., axis])
-
-    for key, axis in (("u", 1), ("v", 0)):
-        kink = np.einsum("ni,ni->n", lam, excess(V, axis)) + excess(q, axis)
-        bound = np.where(r_max <= R1, 0.0, np.where(r_min >= R1, smooth, kink))
-        bounds[key] = bound + round_off * OMEGA * R1  # max |u|, |v| = Omega(R1) R1
-    return bounds
-
-
-def test_sections_follow_the_known_field():
-    """Sections interpolate the cloud linearly: each sample is within the bound of its triangle
-    (:func:`interpolation_bounds`).  The velocity bounds are attained, to round-off, in triangles
-    cut by r = R1 with the sample inside the tool (there L f - f = sum_i lam_i h(V_i)); T reaches
-    0.86 of its bound, 0.88 when the positions move by a few ulps and the ties split otherwise."""
+def test_sections_are_drawn_as_the_run_recorded_them():
+    """The figures take the sections the recorder sampled (one sampling per run): the abscissa
+    is x along A-A (y = 0) and y along B-B (x = 0), the values those of the saved index asked."""
     res = fake_result()
-    s = len(res.t) - 1
-    pts = np.asarray(res.points[s])
-    x, vals = figures.section(res, s, "A-A")
-    assert x.min() < -0.9 * R2 and x.max() > 0.9 * R2
-    bound = interpolation_bounds(pts, x, np.zeros_like(x), res.t[s])
-    exact_v = angular_velocity(np.abs(x)) * x  # v = Omega(r) x on y = 0
-    assert np.all(np.abs(vals["v"] - exact_v) <= bound["v"])
-    assert np.all(np.abs(vals["u"]) <= bound["u"])  # u = -Omega y = 0 on A-A
-    y, vals = figures.section(res, s, "B-B")
-    bound = interpolation_bounds(pts, np.zeros_like(y), y, res.t[s])
-    assert np.all(np.abs(vals["u"] + angular_velocity(np.abs(y)) * y) <= bound["u"])
-    assert np.all(np.abs(vals["T"] - temperature(np.abs(y), res.t[s])) <= bound["T"])
-    with pytest.raises(ValueError, match="unknown section"):
-        figures.section(res, s, "C-C")
+    for s in (0, len(res.t) - 1):
+        x, vals = figures.section(res, s, "A-A")
+        recorded = res.sections["A-A"]
+        np.testing.assert_array_equal(x, recorded["x"])
+        for key in ("u", "v", "T"):
+            np.testing.assert_array_equal(vals[key], recorded[key][s])
+        y, vals = figures.section(res, s, "B-B")
+        np.testing.assert_array_equal(y, res.sections["B-B"]["y"])
+        np.testing.assert_array_equal(vals["u"], res.sections["B-B"]["u"][s])
+
+
+def test_a_section_the_scene_does_not_record_skips_its_figure():
+    res = fake_result()
+    with pytest.raises(figures.FigureSkipped, match="no section 'C-C'"):
+        figures.section(res, 0, "C-C")
+    res.sections = None
+    with pytest.raises(figures.FigureSkipped, match="no section 'A-A'"):
+        figures.section(res, 0, "A-A")
 
 
 def test_saved_index_nearest_and_beyond_end():

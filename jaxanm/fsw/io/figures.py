@@ -10,9 +10,9 @@ Conventions:
 
 - Registration points (1), (2), (3) are the result's probes in the order the scene lists
   them; fig. 2 uses the first two, fig. 3 the first and the third.
-- Sections A-A (y = 0) and B-B (x = 0) are sampled from the point cloud at a saved time by
-  piecewise-linear interpolation on its Delaunay triangulation
-  (:class:`matplotlib.tri.LinearTriInterpolator`), across the whole disc.
+- Sections A-A (y = 0) and B-B (x = 0) are the scene's registration sections as the run
+  recorded them (MLS values at the saved times, :func:`section`): they are sampled once, by
+  the recorder, and drawn as recorded.
 - A requested time (0.01 s, 0.3 s, ...) is drawn at the nearest saved time, which the panel
   title states; it is skipped if the run ended more than half a save interval before it.
 - Material 0 is the tool (grey), 1 the plate y > 0 (blue), 2 the plate y < 0 (red).  The
@@ -30,7 +30,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, ScalarFormatter
-from matplotlib.tri import LinearTriInterpolator, Triangulation
+from matplotlib.tri import Triangulation
 
 log = logging.getLogger(__name__)
 
@@ -73,30 +73,27 @@ def saved_index(result, t_target: float) -> int:
     return int(np.argmin(np.abs(t - t_target)))
 
 
-def section(result, s: int, name: str, n: int = 401) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Sample u, v, T along section ``"A-A"`` (y = 0) or ``"B-B"`` (x = 0) at saved index ``s``.
+def section(result, s: int, name: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The recorded values of u, v, T along the scene's section ``name`` at saved index ``s``.
 
-    Returns the abscissa (x for A-A, y for B-B, in m) and a dict of the interpolated fields;
-    samples outside the convex hull of the cloud are dropped.
+    The run samples its sections once, by MLS at the saved times (``result.sections``, see
+    :class:`~jaxanm.fsw.record.FSWResult`); the figures draw those samples.  Returns the
+    abscissa (x for a section along a line y = const, as A-A; y for one along x = const, as
+    B-B; else the distance from its start, in m) and a dict of the fields there.  Raises
+    :class:`FigureSkipped` when the scene records no section of that name or none at that time.
     """
-    pts = np.asarray(result.points, dtype=np.float64)[s]
-    radius = float(np.max(np.hypot(pts[:, 0], pts[:, 1])))
-    coord = np.linspace(-radius, radius, n)
-    zero = np.zeros(n)
-    if name == "A-A":
-        line = np.column_stack([coord, zero])
-    elif name == "B-B":
-        line = np.column_stack([zero, coord])
-    else:
-        raise ValueError(f"unknown section {name!r}; use 'A-A' (y = 0) or 'B-B' (x = 0)")
-    tri = Triangulation(pts[:, 0], pts[:, 1])
-    sampled = {}
-    for key in ("u", "v", "T"):
-        field = np.asarray(getattr(result, key), dtype=np.float64)[s]
-        values = LinearTriInterpolator(tri, field)(line[:, 0], line[:, 1])
-        sampled[key] = np.ma.filled(values.astype(np.float64), np.nan)
-    keep = np.all([np.isfinite(f) for f in sampled.values()], axis=0)
-    return coord[keep], {k: f[keep] for k, f in sampled.items()}
+    sections = getattr(result, "sections", None) or {}
+    if name not in sections:
+        raise FigureSkipped(f"the scene records no section {name!r} (add it to the scene's [[sections]])")
+    t = float(np.asarray(result.t, dtype=np.float64)[s])
+    times = np.asarray(sections["t"], dtype=np.float64)
+    k = int(np.argmin(np.abs(times - t))) if times.size else -1
+    if k < 0 or abs(times[k] - t) > 1e-9 * max(abs(t), 1e-3):
+        raise FigureSkipped(f"section {name!r} was not recorded at t = {t:.6g} s")
+    line = sections[name]
+    x, y = np.asarray(line["x"], dtype=np.float64), np.asarray(line["y"], dtype=np.float64)
+    coord = x if np.ptp(y) == 0.0 else y if np.ptp(x) == 0.0 else np.asarray(line["s"], dtype=np.float64)
+    return coord, {key: np.asarray(line[key], dtype=np.float64)[k] for key in ("u", "v", "T")}
 
 
 def _figure(ncols: int) -> tuple[Figure, list]:
