@@ -45,9 +45,9 @@ def to_jsonable(obj):
     """Convert ``obj`` to plain JSON types (dict, list, str, float, int, bool, None).
 
     Objects with an ``as_dict()`` or ``to_dict()`` method (:class:`jaxanm.Stats`, the
-    scene, in its TOML layout) and dataclasses become dictionaries; numpy/JAX arrays become (nested) lists; paths become strings; enums their
-    value; anything else unknown its ``repr``.  Non-finite floats are kept (JSON ``NaN``/
-    ``Infinity``, as Python's ``json`` writes them).
+    scene, in its TOML layout) and dataclasses become dictionaries; numpy/JAX arrays become
+    (nested) lists; paths become strings; enums their value; anything else unknown its ``repr``.
+    Non-finite floats are kept (JSON ``NaN``/``Infinity``, as Python's ``json`` writes them).
     """
     if obj is None or isinstance(obj, (bool, int, float, str)):
         return obj
