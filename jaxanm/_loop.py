@@ -34,15 +34,15 @@ import numpy as np
 
 from ._hooks import Remap
 from ._loop_state import Kept, LoopState
+from ._problem import Problem
 from ._run_checkpoint import Checkpoints, from_checkpoint
 from ._run_inputs import on_device, remapped_state
 from ._saveat import SaveAt
 from ._sensitivity_method import SensitivityMethod
+from ._solver import StepSolver
 from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
 from .checkpoint import sigterm_as_interrupt
 from .errors import NonFiniteError, StepFailure
-from ._problem import Problem
-from ._solver import StepSolver
 from .stats import Stats
 
 

@@ -19,9 +19,9 @@ import numpy as np
 import scipy.sparse
 
 from ._factorization import Factorization, counted_solve, factorize
+from ._series import AffineFunctions, AffinePath, path_coefficients
 from .errors import NonFiniteError, SingularMatrixError, StepFailure
 from .jacobian import SparseJacobian, dense_jacobian_function
-from ._series import AffineFunctions, AffinePath, path_coefficients
 from .stats import Stats
 
 MAX_LAYOUTS = 16

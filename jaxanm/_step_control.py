@@ -61,7 +61,6 @@ import numpy as np
 from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
 from .errors import InputError, StepFailure
 
-
 HOLD = 1.5
 """Default :attr:`StepController.hold` (module docstring, "Holding the step size")."""
 
@@ -151,7 +150,8 @@ class StepController(StepSizeController):
                 raise InputError(f"StepController.{name} must be a number >= 1 (1: off), got {v!r}")
         if self.error_map is not None and not callable(self.error_map):
             raise InputError("StepController.error_map must be a callable (x, params) -> array")
-        if self.error_scale is not None and not np.all(np.isfinite(self.error_scale) & (np.asarray(self.error_scale) > 0)):
+        if self.error_scale is not None and not np.all(np.isfinite(self.error_scale)
+                                                       & (np.asarray(self.error_scale) > 0)):
             raise InputError("StepController.error_scale must be positive and finite")
 
     def measured(self, x, params) -> np.ndarray:

@@ -59,17 +59,18 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from ._x64 import entry_point
-from .errors import InputError, StepFailure
 from ._integrate import integrate
 from ._run_inputs import check_run_inputs, params_float64
 from ._saveat import SaveAt
 from ._sensitivity_method import Polished, SensitivityMethod
+from ._x64 import entry_point
+from .errors import InputError, StepFailure
 from .stats import Stats
 
 _FLOOR = 1e3  # a correction that stops shrinking below _FLOOR * polish_tol is at the round-off floor
 
-__all__ = ["ForwardSensitivity", "SensitivityStats", "Sensitivities", "bind_paths", "loss_value_and_grad", "sensitivities", "value_and_grad"]
+__all__ = ["ForwardSensitivity", "SensitivityStats", "Sensitivities", "bind_paths", "loss_value_and_grad",
+           "sensitivities", "value_and_grad"]
 
 
 def bind_paths(params, theta):
@@ -130,7 +131,8 @@ class SensitivityStats:
     extra_factorizations: int = 0
     rate: list = dataclasses.field(default_factory=list)
     residual_norm: list = dataclasses.field(default_factory=list)
-    wall_time: dict = dataclasses.field(default_factory=lambda: dict.fromkeys(("solver", "polish", "tangent", "observe"), 0.0))
+    wall_time: dict = dataclasses.field(
+        default_factory=lambda: dict.fromkeys(("solver", "polish", "tangent", "observe"), 0.0))
 
 
 @dataclasses.dataclass
@@ -188,20 +190,26 @@ def _kernels(residual, bind, observe):
 
     def step_rhs(x, x_old, t, dt, params, theta, S_T, E):
         """``dR/dx_old S + dR/dtheta``, one row per column of S (P, n)."""
-        f = lambda xo, th: residual(x, xo, t, dt, bind(params, th))
+        def f(xo, th):
+            return residual(x, xo, t, dt, bind(params, th))
+
         return jax.vmap(lambda s, e: jax.jvp(f, (x_old, theta), (s, e))[1])(S_T, E)
 
     def jac_x(x, x_old, t, dt, params, theta, V_T):
         """``J V`` for each row of V_T (P, n)."""
         bound = bind(params, theta)
-        f = lambda xx: residual(xx, x_old, t, dt, bound)
+        def f(xx):
+            return residual(xx, x_old, t, dt, bound)
+
         return jax.vmap(lambda v: jax.jvp(f, (x,), (v,))[1])(V_T)
 
     def obs(t, x, params, theta):
         return observe(t, x, bind(params, theta))
 
     def obs_tangent(t, x, params, theta, S_T, E):
-        f = lambda xx, th: observe(t, xx, bind(params, th))
+        def f(xx, th):
+            return observe(t, xx, bind(params, th))
+
         value = f(x, theta)
         tangent = jax.vmap(lambda s, e: jax.jvp(f, (x, theta), (s, e))[1])(S_T, E)
         return value, tangent
@@ -211,7 +219,8 @@ def _kernels(residual, bind, observe):
 
 def _theta_float64(theta):
     if not isinstance(theta, dict) or not theta:
-        raise InputError(f"theta must be a non-empty dict name -> value of the differentiable parameters, got {theta!r}")
+        raise InputError("theta must be a non-empty dict name -> value of the differentiable parameters, "
+                         f"got {theta!r}")
     out = {}
     for key, value in theta.items():
         arr = np.asarray(value)

@@ -167,7 +167,8 @@ def test_summary_json(written):
     assert set(s["stats"]["wall_time"]) == {"jacobian", "factorize", "series", "solve", "other"}
     assert "amax" not in s["stats"]  # the per-step lists are in steps.json
     steps = json.loads((out / "steps.json").read_text())
-    assert len(steps["amax"]) == res.stats.time_steps and set(steps) == {"amax", "orders", "residual_norm", "step_sizes"}
+    assert len(steps["amax"]) == res.stats.time_steps
+    assert set(steps) == {"amax", "orders", "residual_norm", "step_sizes"}
     assert s["probes_final"]["p1"]["v"] == float(res.probes["p1"]["v"][-1])
     assert set(s["probes_final"]["p1"]) == {"x", "y", "u", "v", "T"}
 

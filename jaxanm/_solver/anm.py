@@ -11,8 +11,7 @@ import dataclasses
 import numpy as np
 
 from .. import _pade
-from .._acceptance import (CHECK_LIMIT, CRITERIA, evaluate_series, promised_accuracy, reference_state,
-                           validity_range)
+from .._acceptance import CHECK_LIMIT, CRITERIA, evaluate_series, promised_accuracy, reference_state, validity_range
 from .._problem import SeriesPath
 from ..errors import InputError, NonFiniteError, StepFailure
 from .base import Attempt, AttemptSolver, check_count, check_flag, check_tol

@@ -216,7 +216,9 @@ class AttemptSolver(StepSolver):
         try:
             x, residual = attempt.run(step, x_old, t, dt, params)
         except StepFailure as failure:
-            raise failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None))
+            # the same exception, with the state to retry from attached: re-raise it as it is
+            failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None))
+            raise
         return x, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=residual)
 
 

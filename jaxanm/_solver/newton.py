@@ -36,7 +36,8 @@ class _NewtonStep(Attempt):
                 self.fact = P.factorize_in_step(step, x, x_old, t, dt, params, residual_norm=r_norm)
             dx = -P.solve(self.fact, r)
             size = P.norm(dx)
-            if (not just_factored and previous is not None and size > self.opts.max_rate * previous) or not np.isfinite(size):
+            slow = not just_factored and previous is not None and size > self.opts.max_rate * previous
+            if slow or not np.isfinite(size):
                 if just_factored:
                     raise NonFiniteError("Newton correction is not finite", step=step, t=t, residual_norm=r_norm)
                 self.drop_factorization()  # slow or diverging with an old Jacobian: rebuild it here
