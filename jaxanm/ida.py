@@ -358,15 +358,13 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
     pattern = _newton_pattern(g, x0, sparsity, t0, h0, params)
     jac = SparseJacobian(g, pattern)
     stats = IDAStats()
+    t_start, y0 = float(t0), x0  # IDA starts from the given yp0 at t0, else after the consistent start
     if yp0 is None:
         t_start, y0, yp0, stats.ic_stats = _consistent_start(residual, x0, params, t0, ic_dt, ic_tol, scale, pattern)
         stats.ic_steps = 2
-    else:
-        t_start, y0 = float(t0), x0
     stats.wall_time["start"] = time.perf_counter() - wall0
     solver = _ida(ida_module, F, jac, h0, params, pattern, stats, nthreads=nthreads, rtol=float(rtol),
-                  atol=atol_a * scale, max_order=int(max_order), first_step=float(first_step),
-                  max_step=float(max_step))
+                  atol=atol_a * scale, max_order=int(max_order), first_step=float(first_step), max_step=float(max_step))
     r = solver.init_step(t_start, y0, yp0)
     if not r.success:
         raise IDAFailure(str(r.message), status=r.status, t=t_start, stats=stats)
