@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable, NamedTuple
+from typing import Callable, NamedTuple, cast
 
 import numpy as np
 
@@ -236,7 +236,8 @@ class StepController(StepSizeController):
         if y_now is None:  # no earlier step to estimate with: accepted as proposed
             state = state._replace(h_next=self.clip(h))
         else:
-            y_before, h_prev = state.history
+            # y_now is measured only when the state has a history (attempt, retry)
+            y_before, h_prev = cast(tuple, state.history)
             y_new = self.measured(x_new, params)
             local = self.local_error(y_new, y_now, y_before, size, h_prev)
             err = self.norm(local, y_new, scale)

@@ -34,7 +34,7 @@ class _NewtonStep(Attempt):
             if just_factored:
                 self.drop_factorization()
                 self.fact = P.factorize_in_step(step, x, x_old, t, dt, params, residual_norm=r_norm)
-            dx = -P.solve(self.fact, r)
+            dx = -P.solve(self.factorized(), r)
             size = P.norm(dx)
             slow = not just_factored and previous is not None and size > self.opts.max_rate * previous
             if slow or not np.isfinite(size):
@@ -61,6 +61,9 @@ class _NewtonIteration(AttemptSolver):
     ``reuses_factorization``)."""
 
     attempt = _NewtonStep
+    tol: float
+    max_iter: int
+    max_rate: float  # ModifiedNewton's; read only when reuses_factorization
 
 
 @dataclasses.dataclass(frozen=True)
