@@ -26,9 +26,9 @@ import time
 import numpy as np
 
 from jaxanm import mls
+from jaxanm._factorization import sparse_lu
 from jaxanm.fsw import discretise, load_scene
 from jaxanm.fsw.geometry import build_stencils
-from jaxanm._factorization import sparse_lu
 
 
 def kernel_inputs(points, n_tool, geometry, m_max):

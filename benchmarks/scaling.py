@@ -46,9 +46,9 @@ def measure(dr: float, repeats: int, order: int = 7) -> dict:
     import jax.numpy as jnp
 
     import jaxanm
+    from jaxanm._problem import compiled
     from jaxanm.fsw.discretisation import discretise
     from jaxanm.fsw.scene import load_scene
-    from jaxanm._problem import compiled
 
     t = time.perf_counter()
     scene = load_scene("fsw_tracers").with_overrides({"geometry.dr": dr})

@@ -36,15 +36,14 @@ import tempfile
 import numpy as np
 
 import jaxanm
-from jaxanm import checkpoint as ckpt
+from jaxanm import ANM, Factorization
 from jaxanm import _pade as pade
+from jaxanm import checkpoint as ckpt
+from jaxanm._problem import Problem, SeriesPath
+from jaxanm._solver.anm import _ANMStep
 from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run
-from jaxanm import Factorization
-from jaxanm import ANM
-from jaxanm._problem import Problem, SeriesPath
-from jaxanm._solver.anm import _ANMStep
 
 EXACT_TOL = 1e-13
 """The reference x* of a step: full Newton until the relative correction is below this."""

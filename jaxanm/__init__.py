@@ -8,23 +8,23 @@ Every public function runs in float64 (inside ``jax.enable_x64``) without changi
 global configuration; wrap your own jnp code in ``with jaxanm.float64():`` to match.
 """
 
-from ._x64 import float64
-from .bordered import ContinuationFailure
-from .continuation import Branch, BranchPoints, continuation, newton_continuation
-from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
+from ._acceptance import evaluate_series, validity_range
 from ._constant_step import ConstantStepSize
+from ._factorization import Factorization, factorize
 from ._hooks import Remap
 from ._integrate import Solution, integrate
 from ._run_checkpoint import stored_host_state
 from ._saveat import SaveAt
 from ._sensitivity_method import SensitivityMethod
-from ._step_control import StepController
-from .jacobian import SparseJacobian, color_columns, detect_sparsity
-from ._factorization import Factorization, factorize
-from .sensitivity import ForwardSensitivity, Sensitivities, sensitivities, value_and_grad
 from ._series import taylor_coefficients
-from ._acceptance import evaluate_series, validity_range
 from ._solver import ANM, ModifiedNewton, Newton, SolverState, StepSolver, make_solver, solver_kinds
+from ._step_control import StepController
+from ._x64 import float64
+from .bordered import ContinuationFailure
+from .continuation import Branch, BranchPoints, continuation, newton_continuation
+from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
+from .jacobian import SparseJacobian, color_columns, detect_sparsity
+from .sensitivity import ForwardSensitivity, Sensitivities, sensitivities, value_and_grad
 from .stats import Stats
 
 __all__ = [

@@ -20,7 +20,6 @@ from ._extras import require
 from .errors import SingularMatrixError
 from .stats import Stats
 
-
 # Why these SuperLU settings (the measurements: benchmarks/results/lu_orderings.md and
 # docs/notes/sparse_lu_at_scale.md).  The FSW tangents have a structurally symmetric pattern
 # whose diagonal entries make acceptable pivots, so minimum degree on A + A^T in symmetric mode,

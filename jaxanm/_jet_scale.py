@@ -67,7 +67,9 @@ def _batch(args, dims, *, op):
     return scale(x, c, op), 0
 
 
-def _jet_rule(primals_in, series_in, *, op):
+def _jet_rule(primals_in, series_in, **params):
+    # jet's rule signature: the primitive's params as keywords (here op alone, see scale)
+    op = params["op"]
     (x, c), (terms, _) = primals_in, series_in  # c is constant: its terms are zeros
     return scale(x, c, op), [scale(t, c, op) for t in terms]
 

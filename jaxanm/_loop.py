@@ -33,16 +33,16 @@ from typing import Callable
 import numpy as np
 
 from ._hooks import Remap
-from ._loop_state import Kept, LoopState
+from ._loop_state import Kept, Log, LoopState
+from ._problem import Problem
 from ._run_checkpoint import Checkpoints, from_checkpoint
 from ._run_inputs import on_device, remapped_state
 from ._saveat import SaveAt
 from ._sensitivity_method import SensitivityMethod
-from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
-from .checkpoint import sigterm_as_interrupt
-from .errors import NonFiniteError, StepFailure
-from ._problem import Problem
 from ._solver import StepSolver
+from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
+from .checkpoint import SignalGuard, sigterm_as_interrupt
+from .errors import NonFiniteError, StepFailure
 from .stats import Stats
 
 
@@ -109,16 +109,19 @@ class TimeLoop:
         stats = Stats() if payload is None else payload["stats"]
         self.tally = _Tally(stats, stats.wall_time_s, start)
         self.problem = Problem(residual, scale, stats, jacobian, sparsity)
-        self.state = LoopState(k=0, t=float(span.t0), x=x0, params=params, solver_state=solver.init(self.problem),
-                               controller_state=o.controller.init(span), kstar_dt=None, kept=None)
+        solver_state, controller_state = solver.init(self.problem), o.controller.init(span)
         if payload is None:
-            self.state = self.state._replace(kept=Kept.start(span.t0, x0, params, saveat.params, saveat.fn))
-        else:
+            kept = Kept.start(span.t0, x0, params, saveat.params, saveat.fn)
+        else:  # a placeholder: the checkpoint's record replaces it (from_checkpoint)
+            kept = Kept(Log.of([]), Log.of([]), None, None)
+        self.state = LoopState(k=0, t=float(span.t0), x=x0, params=params, solver_state=solver_state,
+                               controller_state=controller_state, kstar_dt=None, kept=kept)
+        if payload is not None:
             self._resume(payload)
         o.sensitivity.start(self.problem, span.t0, x0, params)
         self.bar = _progress_bar(o.controller.expected_steps(span), span.t1 - span.t0, o.progress,
                                  initial=self.state.k)
-        self.guard = None
+        self.guard: SignalGuard | None = None
 
     def _resume(self, payload: dict) -> None:
         """The record, the solver's K* and the controller's state from a checkpoint."""
@@ -256,15 +259,18 @@ class TimeLoop:
 
     def _accept(self, k: int, t_new: float, x_new, r_norm: float, verdict: Verdict) -> None:
         """Hand an accepted step to the hooks and record it (signals wait meanwhile)."""
-        o, s = self.options, self.state
-        self.guard.hold()  # from here to release(): signals wait, the step is recorded whole
+        o, s, guard = self.options, self.state, self.guard
+        if guard is None:  # run() sets it around the steps
+            raise RuntimeError("a step is accepted outside TimeLoop.run")
+        guard.hold()  # from here to release(): signals wait, the step is recorded whole
         self.tally.accepted(r_norm, verdict.size)
         controller_state = verdict.state
         params_new = o.after_step(t_new, x_new, s.params)
         if isinstance(params_new, Remap):
             if not params_new.history:
                 controller_state = self.controller.forget(controller_state)
-            params_new, x_new = params_new.params, remapped_state(params_new.x, x_new)
+            x_new = remapped_state(params_new.x, x_new)
+            params_new = params_new.params
         if params_new is not s.params:
             params_new = on_device(params_new, s.params)
         saved = self.controller.saved(controller_state, k, t_new, self.span)
@@ -272,7 +278,7 @@ class TimeLoop:
         self.state = s._replace(k=k, t=t_new, x=x_new, params=params_new, controller_state=controller_state,
                                 kept=kept)
         self.sensitivity.record(t_new, x_new, params_new)
-        self.guard.release()
+        guard.release()
         o.callback(t_new, x_new, self.stats)
         self.bar.update(1)
         self.bar.set_postfix(t=f"{t_new:.4g}", factorizations=self.stats.factorizations, refresh=False)

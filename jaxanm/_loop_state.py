@@ -9,11 +9,14 @@ under whoever holds it.
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import numpy as np
 
 from .checkpoint import to_host
+
+if TYPE_CHECKING:
+    from ._solver import SolverState
 
 
 class Log(NamedTuple):
@@ -114,7 +117,7 @@ class LoopState(NamedTuple):
     t: float
     x: np.ndarray
     params: object
-    solver_state: object
+    solver_state: SolverState
     controller_state: object
     kstar_dt: float | None
     kept: Kept

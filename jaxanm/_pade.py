@@ -59,6 +59,7 @@ For p = 2, ``P_1 = u_0`` and the criterion fails at every a > 0: ``a_pade = 0``.
 from __future__ import annotations
 
 import dataclasses
+from typing import cast
 
 import numpy as np
 
@@ -151,7 +152,8 @@ def approximant(coeffs, scale) -> PadeApproximant:
     rho = float((norms[f] / norms[m]) ** (1.0 / (m - f))) if m > f else 1.0
     powers = np.zeros(p)
     powers[nonzero] = rho ** (nonzero - f).astype(np.float64)  # zero coefficients stay zero (no inf * 0)
-    r = np.linalg.qr((scaled * powers[:, None]).T, mode="r")
+    # numpy's stubs type every mode of qr as QRResult; mode="r" returns the R factor alone
+    r = cast(np.ndarray, np.linalg.qr((scaled * powers[:, None]).T, mode="r"))
     r = np.vstack([r, np.zeros((p - r.shape[0], p))])  # n < p: pad the factor to p x p
     largest = float(np.max(np.linalg.norm(r, axis=0)))
     e = _denominator(r, p, largest)
@@ -164,7 +166,8 @@ def _denominator(r, q, largest) -> np.ndarray:
     squares ``min |ct_q + sum_k e_k ct_{q-k}|`` over the columns kept in the order k = 1, 2, ...
     (a column nearly dependent on those before it is left out, :data:`DEPENDENCE`)."""
     e = np.zeros(q - 1)
-    basis, kept = [], []
+    basis: list[np.ndarray] = []
+    kept: list[int] = []
     for k in range(1, q):
         v = r[:, q - k - 1].copy()
         for _ in range(2):  # Gram–Schmidt twice: orthogonal to round-off

@@ -19,9 +19,9 @@ import numpy as np
 import scipy.sparse
 
 from ._factorization import Factorization, counted_solve, factorize
+from ._series import AffineFunctions, AffinePath, path_coefficients
 from .errors import NonFiniteError, SingularMatrixError, StepFailure
 from .jacobian import SparseJacobian, dense_jacobian_function
-from ._series import AffineFunctions, AffinePath, path_coefficients
 from .stats import Stats
 
 MAX_LAYOUTS = 16
@@ -81,10 +81,10 @@ class SeriesPath:
                  max_terms: int | None = None):
         self._problem, self._d_s, self._args = problem, d_s, args
         self._lookahead, self._max_terms = lookahead, max_terms
-        self._terms = []
+        self._terms: list[np.ndarray] = []
         with problem.stats.timer("series"):
             self._fns = problem.affine_functions(d_s, args)
-        self._path = None
+        self._path: AffinePath | None = None
 
     def _affine_path(self, f0=None) -> AffinePath:
         """The series along this path (``f0``: the frontier at ``d_s`` when already known)."""
@@ -137,7 +137,7 @@ class Problem:
         self._compiled = compiled(residual)
         self._mode = jacobian
         self._sparsity = sparsity
-        self._sparse = None
+        self._sparse: SparseJacobian | None = None
         self._pattern_key = None
         self._dense = dense_jacobian_function(residual) if jacobian == "dense" else None
         self._affine = _NOT_LOOKED_UP  # AffineFunctions or None once looked up: a run keeps its layout

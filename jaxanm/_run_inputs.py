@@ -15,10 +15,10 @@ import scipy.sparse
 from ._constant_step import ConstantStepSize
 from ._saveat import SaveAt
 from ._sensitivity_method import SensitivityMethod
+from ._solver import StepSolver
 from ._step_size import StepSizeController
 from .errors import InputError
 from .jacobian import detect_sparsity
-from ._solver import StepSolver
 
 AUTO_SPARSE_SIZE = 400
 """Above this many unknowns ``jacobian="auto"`` picks the sparse Jacobian."""
@@ -158,5 +158,6 @@ def remapped_state(x, like):
     x = np.asarray(x, dtype=np.float64)
     if x.shape != like.shape or not np.all(np.isfinite(x)):
         raise InputError(f"after_step returned a Remap state of shape {x.shape} with "
-                         f"{int(np.sum(~np.isfinite(x)))} non-finite entries; it must be finite with shape {like.shape}")
+                         f"{int(np.sum(~np.isfinite(x)))} non-finite entries; "
+                         f"it must be finite with shape {like.shape}")
     return x

@@ -60,8 +60,8 @@ def taylor_coefficients(f: Callable, x0, terms: Sequence, *args) -> list:
             f"taylor_coefficients: every term must have the shape of x0 {x0.shape}, "
             f"got {shapes}; pass one array per order shaped like x0."
         )
-    terms = jnp.stack([jnp.asarray(t, dtype=jnp.float64) for t in terms])
-    f0, fs = jax.jit(path_coefficients, static_argnums=0)(f, x0, terms, *args)
+    stacked = jnp.stack([jnp.asarray(t, dtype=jnp.float64) for t in terms])
+    f0, fs = jax.jit(path_coefficients, static_argnums=0)(f, x0, stacked, *args)
     return [f0, *list(fs)]
 
 

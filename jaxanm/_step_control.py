@@ -54,13 +54,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable, NamedTuple
+from typing import Callable, NamedTuple, cast
 
 import numpy as np
 
 from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
 from .errors import InputError, StepFailure
-
 
 HOLD = 1.5
 """Default :attr:`StepController.hold` (module docstring, "Holding the step size")."""
@@ -151,7 +150,8 @@ class StepController(StepSizeController):
                 raise InputError(f"StepController.{name} must be a number >= 1 (1: off), got {v!r}")
         if self.error_map is not None and not callable(self.error_map):
             raise InputError("StepController.error_map must be a callable (x, params) -> array")
-        if self.error_scale is not None and not np.all(np.isfinite(self.error_scale) & (np.asarray(self.error_scale) > 0)):
+        if self.error_scale is not None and not np.all(np.isfinite(self.error_scale)
+                                                       & (np.asarray(self.error_scale) > 0)):
             raise InputError("StepController.error_scale must be positive and finite")
 
     def measured(self, x, params) -> np.ndarray:
@@ -236,7 +236,8 @@ class StepController(StepSizeController):
         if y_now is None:  # no earlier step to estimate with: accepted as proposed
             state = state._replace(h_next=self.clip(h))
         else:
-            y_before, h_prev = state.history
+            # y_now is measured only when the state has a history (attempt, retry)
+            y_before, h_prev = cast(tuple, state.history)
             y_new = self.measured(x_new, params)
             local = self.local_error(y_new, y_now, y_before, size, h_prev)
             err = self.norm(local, y_new, scale)

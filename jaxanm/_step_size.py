@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import abc
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -50,7 +50,7 @@ class Attempt(NamedTuple):
     end: float
     segments: tuple
     failures: int = 0
-    memo: object = None
+    memo: Any = None  # the controller's own: each controller reads back what it stored
 
 
 class Verdict(NamedTuple):

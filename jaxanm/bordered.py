@@ -30,13 +30,13 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
-from .errors import InputError, SingularMatrixError, StepFailure, _number
-from ._run_inputs import jacobian_kind, on_device, params_float64
-from .jacobian import detect_sparsity
 from ._factorization import Factorization, counted_solve
 from ._factorization import factorize as counted_factorize
 from ._problem import Problem, compiled
+from ._run_inputs import jacobian_kind, on_device, params_float64
 from ._series import AffinePath
+from .errors import InputError, SingularMatrixError, StepFailure, _number
+from .jacobian import detect_sparsity
 from .stats import Stats
 
 START_ITERATIONS = 20

@@ -42,11 +42,11 @@ def atomic_path(path, prefix: str | None = None) -> Iterator[Path]:
     """
     path = Path(path)
     if prefix is None:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     else:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=prefix)
+        fd, name = tempfile.mkstemp(dir=path.parent, prefix=prefix)
     os.close(fd)
-    tmp = Path(tmp)
+    tmp = Path(name)
     try:
         yield tmp
         os.replace(tmp, path)

@@ -241,9 +241,9 @@ def _resume_plan(args: argparse.Namespace):
     Options given alongside must describe the stored scene exactly (else :class:`UsageError`
     naming the differing fields); ``--out``, if given, must be DIR.
     """
+    from jaxanm import stored_host_state
     from jaxanm.fsw.scene import Scene
     from jaxanm.fsw.simulate import scene_differences
-    from jaxanm import stored_host_state
 
     out_dir = args.resume
     path = out_dir / CHECKPOINT_NAME

@@ -20,10 +20,10 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from ._acceptance import CHECK_LIMIT, CHECK_ROUND_OFF, evaluate_series, validity_range
 from ._x64 import entry_point
 from .bordered import ContinuationFailure, ExtendedSystem, Linearisation, check_inputs, corrected_start
 from .errors import InputError
-from ._acceptance import CHECK_LIMIT, CHECK_ROUND_OFF, evaluate_series, validity_range
 from .stats import Stats
 
 MAX_HALVINGS = 10

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ._solver.base import SolverState
 
 
 class InputError(ValueError):
@@ -29,6 +33,10 @@ class StepFailure(RuntimeError):
     when no residual was evaluated at the failing state; a non-finite norm is printed as
     ``nan`` or ``inf``.
     """
+
+    # set by a step solver on a failure inside its step: the state to retry from (absent
+    # otherwise, hence read with getattr)
+    solver_state: SolverState
 
     def __init__(self, reason: str, *, step: int, t: float, amax=None, residual_norm=None):
         self.reason = reason

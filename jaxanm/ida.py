@@ -63,9 +63,9 @@ import numpy as np
 import scipy.sparse
 
 from ._extras import require
+from ._run_inputs import params_float64
 from ._x64 import entry_point
 from .errors import InputError
-from ._run_inputs import params_float64
 from .jacobian import SparseJacobian, detect_sparsity
 
 __all__ = ["IDAFailure", "IDASolution", "IDAStats", "dae_residual", "integrate_ida"]
@@ -102,7 +102,8 @@ class IDAStats:
     ic_steps: int = 0
     ic_stats: object = None
     wall_s: float = 0.0
-    wall_time: dict = dataclasses.field(default_factory=lambda: dict.fromkeys(("start", "residual", "jacobian", "ida"), 0.0))
+    wall_time: dict = dataclasses.field(
+        default_factory=lambda: dict.fromkeys(("start", "residual", "jacobian", "ida"), 0.0))
 
     def summary(self) -> dict:
         """The counters and wall times as a plain dictionary (JSON-serialisable)."""
@@ -173,8 +174,10 @@ def _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps):
     if not (isinstance(rtol, (int, float, np.floating)) and 0 < rtol < 1):
         raise InputError(f"rtol must be a number in (0, 1) (IDA recommends 1e-15 <= rtol <= 1e-3), got {rtol!r}")
     atol_a = np.asarray(atol, dtype=np.float64)
-    if atol_a.ndim > 1 or (atol_a.ndim == 1 and atol_a.size != x0.size) or not np.all(np.isfinite(atol_a) & (atol_a >= 0)):
-        raise InputError(f"atol must be a number >= 0 or an array of {x0.size} of them (relative to scale), got {atol!r}")
+    if (atol_a.ndim > 1 or (atol_a.ndim == 1 and atol_a.size != x0.size)
+            or not np.all(np.isfinite(atol_a) & (atol_a >= 0))):
+        raise InputError(f"atol must be a number >= 0 or an array of {x0.size} of them (relative to scale), "
+                         f"got {atol!r}")
     if rtol == 0 and not np.any(atol_a > 0):
         raise InputError("rtol and atol are both zero: IDA's error weights 1/(rtol |y| + atol scale) would be infinite")
     scale = np.broadcast_to(np.asarray(1.0 if scale is None else scale, dtype=np.float64), x0.shape).copy()
@@ -186,7 +189,8 @@ def _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps):
         raise InputError(f"h0 (the dt of the DAE residual's row scalings) must be a positive number, got {h0!r}")
     ic_dt = 1e-6 * span if ic_dt is None else ic_dt
     if yp0 is None:
-        if not (isinstance(ic_dt, (int, float, np.floating)) and math.isfinite(ic_dt) and 0 < 2 * ic_dt < t_out[0] - t0):
+        if not (isinstance(ic_dt, (int, float, np.floating)) and math.isfinite(ic_dt)
+                and 0 < 2 * ic_dt < t_out[0] - t0):
             raise InputError(f"ic_dt must be positive with t0 + 2 ic_dt < the first output time {t_out[0]!r} "
                              f"(the consistent start takes two implicit-Euler steps of ic_dt), got {ic_dt!r}")
     else:
@@ -266,7 +270,8 @@ def _march(solver, t_start: float, t_out, max_steps: int, stats: IDAStats, wall0
     t = t_start
     for t_next in t_out:
         if t_next <= t_start:
-            raise InputError(f"output time {t_next!r} is before IDA's start {t_start!r} (t0 + 2 ic_dt): give a smaller ic_dt")
+            raise InputError(f"output time {t_next!r} is before IDA's start {t_start!r} (t0 + 2 ic_dt): "
+                             "give a smaller ic_dt")
         while t < t_next:
             if stats.steps >= max_steps:
                 stats.wall_s = time.perf_counter() - wall0
@@ -344,7 +349,8 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
     """
     wall0 = time.perf_counter()
     ida_module = require("sksundae.ida", "ida", "jaxanm.ida.integrate_ida (SUNDIALS IDA)")
-    x0, t_out, atol_a, scale, h0, yp0, ic_dt = _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps)
+    x0, t_out, atol_a, scale, h0, yp0, ic_dt = _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt,
+                                                             max_steps)
     params = jax.device_put(params_float64(params))
     F = dae_residual(residual)
     _check_start_residual(F, t0, x0, yp0, h0, params, consistency_tol)
@@ -352,14 +358,13 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
     pattern = _newton_pattern(g, x0, sparsity, t0, h0, params)
     jac = SparseJacobian(g, pattern)
     stats = IDAStats()
+    t_start, y0 = float(t0), x0  # IDA starts from the given yp0 at t0, else after the consistent start
     if yp0 is None:
         t_start, y0, yp0, stats.ic_stats = _consistent_start(residual, x0, params, t0, ic_dt, ic_tol, scale, pattern)
         stats.ic_steps = 2
-    else:
-        t_start, y0 = float(t0), x0
     stats.wall_time["start"] = time.perf_counter() - wall0
-    solver = _ida(ida_module, F, jac, h0, params, pattern, stats, nthreads=nthreads, rtol=float(rtol), atol=atol_a * scale,
-                  max_order=int(max_order), first_step=float(first_step), max_step=float(max_step))
+    solver = _ida(ida_module, F, jac, h0, params, pattern, stats, nthreads=nthreads, rtol=float(rtol),
+                  atol=atol_a * scale, max_order=int(max_order), first_step=float(first_step), max_step=float(max_step))
     r = solver.init_step(t_start, y0, yp0)
     if not r.success:
         raise IDAFailure(str(r.message), status=r.status, t=t_start, stats=stats)

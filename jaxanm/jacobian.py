@@ -28,8 +28,8 @@ import numpy as np
 import scipy.sparse
 from jax.extend import core as jex_core
 
-from ._x64 import entry_point
 from ._affine import split_affine
+from ._x64 import entry_point
 
 _COLOR_BUCKET = 16  # colours are padded to a multiple of this: fewer recompiles
 # Device memory one seeded jvp of a meshless residual holds, per nonzero of the Jacobian: its

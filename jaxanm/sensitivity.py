@@ -52,24 +52,27 @@ from __future__ import annotations
 import dataclasses
 import functools
 import time
-from typing import Callable
+from typing import Callable, cast
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from ._x64 import entry_point
-from .errors import InputError, StepFailure
+from ._factorization import Factorization
 from ._integrate import integrate
+from ._problem import Problem
 from ._run_inputs import check_run_inputs, params_float64
 from ._saveat import SaveAt
 from ._sensitivity_method import Polished, SensitivityMethod
+from ._x64 import entry_point
+from .errors import InputError, StepFailure
 from .stats import Stats
 
 _FLOOR = 1e3  # a correction that stops shrinking below _FLOOR * polish_tol is at the round-off floor
 
-__all__ = ["ForwardSensitivity", "SensitivityStats", "Sensitivities", "bind_paths", "loss_value_and_grad", "sensitivities", "value_and_grad"]
+__all__ = ["ForwardSensitivity", "SensitivityStats", "Sensitivities", "bind_paths", "loss_value_and_grad",
+           "sensitivities", "value_and_grad"]
 
 
 def bind_paths(params, theta):
@@ -130,7 +133,8 @@ class SensitivityStats:
     extra_factorizations: int = 0
     rate: list = dataclasses.field(default_factory=list)
     residual_norm: list = dataclasses.field(default_factory=list)
-    wall_time: dict = dataclasses.field(default_factory=lambda: dict.fromkeys(("solver", "polish", "tangent", "observe"), 0.0))
+    wall_time: dict = dataclasses.field(
+        default_factory=lambda: dict.fromkeys(("solver", "polish", "tangent", "observe"), 0.0))
 
 
 @dataclasses.dataclass
@@ -162,7 +166,7 @@ class Sensitivities:
     stats: Stats
     sensitivity_stats: SensitivityStats
     wall_time_s: float
-    unravel: Callable = dataclasses.field(repr=False, default=None)
+    unravel: Callable | None = dataclasses.field(repr=False, default=None)
 
     def gradient(self, d_observed) -> object:
         """Chain rule: ``sum d_observed . d observed/d theta`` as a pytree shaped like theta.
@@ -176,7 +180,11 @@ class Sensitivities:
         for g, jac in zip(jax.tree_util.tree_leaves(d_observed), jax.tree_util.tree_leaves(self.jacobian)):
             g = np.asarray(g, dtype=np.float64)
             total += np.tensordot(g, jac, axes=g.ndim)
-        return self.unravel(total)
+        unravel = self.unravel
+        if unravel is None:
+            raise InputError("Sensitivities.unravel is None: gradient needs theta's layout, which "
+                             "jaxanm.sensitivities sets (construct Sensitivities with unravel=...)")
+        return unravel(total)
 
 
 @functools.lru_cache(maxsize=32)
@@ -188,20 +196,26 @@ def _kernels(residual, bind, observe):
 
     def step_rhs(x, x_old, t, dt, params, theta, S_T, E):
         """``dR/dx_old S + dR/dtheta``, one row per column of S (P, n)."""
-        f = lambda xo, th: residual(x, xo, t, dt, bind(params, th))
+        def f(xo, th):
+            return residual(x, xo, t, dt, bind(params, th))
+
         return jax.vmap(lambda s, e: jax.jvp(f, (x_old, theta), (s, e))[1])(S_T, E)
 
     def jac_x(x, x_old, t, dt, params, theta, V_T):
         """``J V`` for each row of V_T (P, n)."""
         bound = bind(params, theta)
-        f = lambda xx: residual(xx, x_old, t, dt, bound)
+        def f(xx):
+            return residual(xx, x_old, t, dt, bound)
+
         return jax.vmap(lambda v: jax.jvp(f, (x,), (v,))[1])(V_T)
 
     def obs(t, x, params, theta):
         return observe(t, x, bind(params, theta))
 
     def obs_tangent(t, x, params, theta, S_T, E):
-        f = lambda xx, th: observe(t, xx, bind(params, th))
+        def f(xx, th):
+            return observe(t, xx, bind(params, th))
+
         value = f(x, theta)
         tangent = jax.vmap(lambda s, e: jax.jvp(f, (x, theta), (s, e))[1])(S_T, E)
         return value, tangent
@@ -211,7 +225,8 @@ def _kernels(residual, bind, observe):
 
 def _theta_float64(theta):
     if not isinstance(theta, dict) or not theta:
-        raise InputError(f"theta must be a non-empty dict name -> value of the differentiable parameters, got {theta!r}")
+        raise InputError("theta must be a non-empty dict name -> value of the differentiable parameters, "
+                         f"got {theta!r}")
     out = {}
     for key, value in theta.items():
         arr = np.asarray(value)
@@ -280,7 +295,7 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
     forward = ForwardSensitivity(residual, params, theta, observe, bind=bind, tangents=tangents,
                                  polish_tol=polish_tol, max_polish=max_polish, max_refine=max_refine)
     solution = integrate(residual, x0, forward.bound_params, t0=t0, t1=t1, dt=dt, solver=solver, scale=scale,
-                         jacobian=jacobian, sparsity=sparsity, saveat=SaveAt(ts=[t1]), max_dt_halvings=max_dt_halvings,
+                         jacobian=jacobian, sparsity=sparsity, saveat=SaveAt(ts=(t1,)), max_dt_halvings=max_dt_halvings,
                          sensitivity=forward)
     return forward.result(solution.stats, time.perf_counter() - start)
 
@@ -315,9 +330,15 @@ class ForwardSensitivity(SensitivityMethod):
         self.step_rhs, self.jac_x, self.obs, self.obs_tangent = _kernels(residual, bind, observe)
         self.tangents, self.polish_tol, self.max_polish, self.max_refine = tangents, polish_tol, max_polish, max_refine
         self.stats = SensitivityStats()
-        self.values, self.tangent_values, self.times = [], [], []
-        self.problem = self.S_T = self.x = None
-        self._fact = self._made = None  # during after_solve: the K* in use, and the one made here (if any)
+        self.values: list = []
+        self.tangent_values: list = []
+        self.times: list[float] = []
+        self.problem: Problem | None = None
+        self.S_T: np.ndarray | None = None
+        self.x: np.ndarray | None = None
+        # during after_solve: the K* in use, and the one made here (if any)
+        self._fact: Factorization | None = None
+        self._made: Factorization | None = None
 
     def start(self, problem, t0, x0, params) -> None:
         """The run's problem; S_0 = 0 (x0 independent of theta) and the observation at t0."""
@@ -374,7 +395,13 @@ class ForwardSensitivity(SensitivityMethod):
 
     def _scaled_norms(self, v) -> np.ndarray:
         """Scaled 2-norm per row of a (P, n) block (or of one vector)."""
-        return np.linalg.norm(np.atleast_2d(v) / self.problem.scale, axis=1)
+        return np.linalg.norm(np.atleast_2d(v) / self._run_problem().scale, axis=1)
+
+    def _run_problem(self) -> Problem:
+        """The run's problem, which :meth:`start` sets before any step."""
+        if self.problem is None:
+            raise RuntimeError("ForwardSensitivity steps before start(): pass it to integrate(sensitivity=...)")
+        return self.problem
 
     def _kstar(self):
         """The K* in use: the step solver's, or the one :meth:`_refresh` made in this step."""
@@ -383,7 +410,7 @@ class ForwardSensitivity(SensitivityMethod):
     def _refresh(self, x, x_old, t, dt) -> None:
         """The Jacobian at ``x`` factorised, used from here on and handed to the loop as the
         solver's next K* (counted)."""
-        fact = self.problem.factorize_at(x, x_old, t, dt, self.bound_params)
+        fact = self._run_problem().factorize_at(x, x_old, t, dt, self.bound_params)
         self._fact = self._made = fact
         self.stats.extra_factorizations += 1
 
@@ -460,7 +487,7 @@ def loss_value_and_grad(loss: Callable, sens: Sensitivities, theta: dict):
     if jnp.ndim(value) != 0:
         raise InputError(f"loss must return a scalar, got shape {jnp.shape(value)}")
     g_data, g_theta = vjp(jnp.ones_like(value))
-    chain = sens.gradient(g_data)
+    chain = cast(dict, sens.gradient(g_data))  # theta is a dict (_theta_float64): so is its unravel
     grad = {k: np.asarray(chain[k] + np.asarray(g_theta[k]), dtype=np.float64) for k in theta}
     return np.float64(value), grad
 

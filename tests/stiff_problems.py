@@ -66,7 +66,8 @@ ROBERTSON_LINEAR = np.array([[-0.04, 0.0, 0.0], [0.04, 0.0, 0.0], [0.0, 0.0, 0.0
 def _robertson(y):
     """ROBER: y1' = -0.04 y1 + 1e4 y2 y3, y2' = 0.04 y1 - 1e4 y2 y3 - 3e7 y2^2, y3' = 3e7 y2^2."""
     y2 = y[1]
-    return ROBERTSON_LINEAR @ y + (1e4 * y2 * y[2]) * np.array([1.0, -1.0, 0.0]) + (3e7 * y2 * y2) * np.array([0.0, -1.0, 1.0])
+    return (ROBERTSON_LINEAR @ y + (1e4 * y2 * y[2]) * np.array([1.0, -1.0, 0.0])
+            + (3e7 * y2 * y2) * np.array([0.0, -1.0, 1.0]))
 
 
 VDP_MU = 1000.0
@@ -103,7 +104,8 @@ def _orego(y):
     """OREGO: y1' = 77.27 (y2 + y1 (1 - 8.375e-6 y1 - y2)), y2' = (y3 - (1 + y1) y2) / 77.27,
     y3' = 0.161 (y1 - y3)."""
     y1, y2 = y[0], y[1]
-    return OREGO_LINEAR @ y + (y1 * y2) * np.array([-77.27, -1.0 / 77.27, 0.0]) - (77.27 * 8.375e-6 * y1 * y1) * np.array([1.0, 0.0, 0.0])
+    return (OREGO_LINEAR @ y + (y1 * y2) * np.array([-77.27, -1.0 / 77.27, 0.0])
+            - (77.27 * 8.375e-6 * y1 * y1) * np.array([1.0, 0.0, 0.0]))
 
 
 # Test Set for IVP Solvers, release 2.4: HIRES at t = 321.8122, OREGO at t = 360

@@ -64,7 +64,8 @@ def test_affine_path_coefficients_equal_the_jet_of_the_whole_residual():
             np.testing.assert_allclose(got, reference[k], rtol=0, atol=1e-12 * scale)
 
 
-@pytest.mark.parametrize("lookahead", [False, pytest.param(True, marks=pytest.mark.slow)])  # the same ladder, one more jet
+# the same ladder, one more jet
+@pytest.mark.parametrize("lookahead", [False, pytest.param(True, marks=pytest.mark.slow)])
 def test_jets_padded_on_the_ladder_give_the_coefficients_of_exact_ones(lookahead):
     # orders past EXACT_TERMS use jets padded with zero terms to the next rung (12 here, then
     # the cap p - 1 = 13): a coefficient of order m depends on the path terms up to m only, so

@@ -17,11 +17,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from model_problems import heat_1d, impulsive_cubic
 
 import jaxanm
 import jaxanm._problem
 import jaxanm._solver.anm
-from model_problems import heat_1d, impulsive_cubic
 
 CHECK_LIMIT = 10.0
 
@@ -46,7 +46,7 @@ def newton_distance_ratio(residual, params, sol, tol):
         for k in range(1, len(sol.ts)):
             x, x_old = sol.xs[k], sol.xs[k - 1]
             args = (jnp.asarray(x_old), jnp.float64(sol.ts[k]), jnp.float64(sol.ts[k] - sol.ts[k - 1]), params)
-            f = lambda y: residual(y, *args)  # noqa: E731
+            f = lambda y, args=args: residual(y, *args)  # noqa: E731
             jac = np.asarray(jax.jacfwd(f)(jnp.asarray(x)))
             delta = np.linalg.solve(jac, np.asarray(f(jnp.asarray(x))))
             yardstick = tol * np.linalg.norm(x - x_old) + 1e-12 * np.linalg.norm(x)
@@ -92,7 +92,7 @@ def test_state_criterion_is_checked_too():
     with jaxanm.float64():
         for k in range(1, len(sol.ts)):
             args = (jnp.asarray(sol.xs[k - 1]), jnp.float64(sol.ts[k]), jnp.float64(0.1), params)
-            f = lambda y: residual(y, *args)  # noqa: E731
+            f = lambda y, args=args: residual(y, *args)  # noqa: E731
             delta = np.linalg.solve(np.asarray(jax.jacfwd(f)(jnp.asarray(sol.xs[k]))), np.asarray(f(sol.xs[k])))
             assert np.linalg.norm(delta) <= CHECK_LIMIT * tol * np.linalg.norm(sol.xs[k])
 

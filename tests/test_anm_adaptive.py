@@ -9,13 +9,12 @@ tolerance promises (the yardstick of tests/test_anm_acceptance.py).
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_anm_acceptance import CHECK_LIMIT, cubic_reaction_diffusion, newton_distance_ratio
 
 import jaxanm
 from jaxanm import taylor_coefficients
-from test_anm_acceptance import CHECK_LIMIT, cubic_reaction_diffusion, newton_distance_ratio
 
 
 def test_truncated_jet_gives_the_padded_coefficient():

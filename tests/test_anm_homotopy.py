@@ -18,11 +18,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.special import binom
+from test_anm_acceptance import CHECK_LIMIT, cubic_reaction_diffusion, newton_distance_ratio
 
 import jaxanm
 from jaxanm import evaluate_series
 from jaxanm._problem import Problem, SeriesPath
-from test_anm_acceptance import CHECK_LIMIT, cubic_reaction_diffusion, newton_distance_ratio
 
 B, S = 0.6, 1.0
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from model_problems import bratu_1d, heat_1d
+from test_anm_acceptance import CHECK_LIMIT, newton_distance_ratio
 
 import jaxanm
 import jaxanm._solver.anm
-from model_problems import bratu_1d, heat_1d
-from test_anm_acceptance import CHECK_LIMIT, newton_distance_ratio
 
 TOL = 1e-6
 

@@ -182,9 +182,10 @@ def test_newtonian_temperature_rise_at_a_coarse_cloud():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="issue 15: at the paper's n the heat rows store more than the discrete "
-                                       "flow dissipates at fine dr (1.06 beta int P_h dt at K = 16, 0.87 at K = 8), which "
-                                       "offsets the flow's falling over-dissipation: the rise error stalls near 14 %")
+@pytest.mark.xfail(strict=True, raises=AssertionError,
+                   reason="issue 15: at the paper's n the heat rows store more than the discrete "
+                          "flow dissipates at fine dr (1.06 beta int P_h dt at K = 16, 0.87 at K = 8), which "
+                          "offsets the flow's falling over-dissipation: the rise error stalls near 14 %")
 def test_paper_exponent_temperature_rise_converges_to_the_oracle():
     """n = 0.1324 over 10 ms at K = 8 and 16 (0.5-2 min).  Measured 0.146 and 0.127: the
     stored heat is 14 % above the oracle's at both, while the dissipated power of the flow
@@ -218,8 +219,8 @@ def test_summary_reports_band_resolution_and_rise_error(tmp_path):
     import json
     import types
 
-    from jaxanm.fsw.io import output
     from jaxanm.fsw.geometry import build_cloud
+    from jaxanm.fsw.io import output
 
     scene = load_scene("fsw_tracers").with_overrides({"time.t_end": "0.05"})
     points = build_cloud(scene.geometry).points

@@ -13,11 +13,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from model_problems import heat_1d
 
 import jaxanm
 from jaxanm import sensitivity
 from jaxanm.fsw import calibration, load_scene
-from model_problems import heat_1d
 
 # --- core: a small nonlinear model problem ---------------------------------------------------
 

@@ -9,9 +9,9 @@ import signal
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from model_problems import heat_1d
 
 import jaxanm
-from model_problems import heat_1d
 
 
 def _integrate(tmp_path, solver, **kw):

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_output import fake_result
 
 from jaxanm import cli
 from jaxanm.errors import StepFailure
 from jaxanm.fsw.scene import Scene, shipped_scenes
 from jaxanm.stats import Stats
-from test_output import fake_result
 
 TINY_TOML = """
 name = "tiny"

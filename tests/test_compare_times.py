@@ -25,14 +25,16 @@ def make_run(name: str, t_probes, t_fields, T_of, v_of=lambda t: 0.0 * t) -> dic
     u = np.outer(OMEGA * R1 * t_fields, np.ones(N))
     v = np.outer(v_of(t_fields), np.ones(N))
     probes = np.zeros(t_probes.size, dtype=[("t", float), ("1_u", float), ("1_v", float), ("1_T", float)])
-    probes["t"], probes["1_u"], probes["1_v"], probes["1_T"] = t_probes, OMEGA * R1 * t_probes, v_of(t_probes), T_of(t_probes)
+    probes["t"], probes["1_u"] = t_probes, OMEGA * R1 * t_probes
+    probes["1_v"], probes["1_T"] = v_of(t_probes), T_of(t_probes)
     summary = {"scene": {"thermal": {"T0": T0}, "tool": {"omega": OMEGA}, "geometry": {"R1": R1}, "time": {"dt": 0.0}},
                "solver": {"kind": "newton", "options": {}}, "t_end": float(t_fields[-1]),
-               "stats": {"time_steps": t_probes.size - 1, "factorizations": 1, "newton_iterations": 2, "series_orders": 0,
-                         "wall_time_s": 1.0, "wall_time": {"jacobian": 0.5, "other": 0.5}}}
+               "stats": {"time_steps": t_probes.size - 1, "factorizations": 1, "newton_iterations": 2,
+                         "series_orders": 0, "wall_time_s": 1.0, "wall_time": {"jacobian": 0.5, "other": 0.5}}}
     points = np.repeat(np.linspace(0.0, 1.0, 2 * N).reshape(1, N, 2), t_fields.size, axis=0)
     return {"dir": name, "summary": summary, "probes": probes,
-            "fields": {"t": t_fields, "points": points, "u": u, "v": v, "T": T, "material": np.zeros(N, dtype=np.int32)}}
+            "fields": {"t": t_fields, "points": points, "u": u, "v": v, "T": T,
+                       "material": np.zeros(N, dtype=np.int32)}}
 
 
 def rise(t):
@@ -104,7 +106,8 @@ def test_richardson_cancels_the_first_order_term_and_estimates_the_rest():
     assert ref["probes"]["t"] == pytest.approx([0.0, 0.2, 0.4], abs=1e-15)  # the save times only
     # abs=1e-9 K: roundings of T ~ 340 K (ulp 6e-14) through two extrapolations
     assert ref["probes"]["1_T"] == pytest.approx(rise(ref["probes"]["t"]) + fine_error * ref["probes"]["t"], abs=1e-9)
-    assert ref["fields"]["T"][:, 0] == pytest.approx(rise(ref["fields"]["t"]) + fine_error * ref["fields"]["t"], abs=1e-9)
+    assert ref["fields"]["T"][:, 0] == pytest.approx(rise(ref["fields"]["t"]) + fine_error * ref["fields"]["t"],
+                                                     abs=1e-9)
     assert ref["fields"]["points"] == pytest.approx(runs[2]["fields"]["points"], abs=0)  # a fixed cloud stays
     # rel=1e-6: the estimate's difference (0.4 K at most) carries the 1e-9 K roundings above
     assert estimate["probe_max_dT_K"] == pytest.approx(-fine_error * 0.4, rel=1e-6)

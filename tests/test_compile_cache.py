@@ -7,6 +7,7 @@ import pytest
 
 from jaxanm import compile_cache
 
+
 @pytest.mark.parametrize("value, on", [("1", True), ("0", False), ("off", False), (" No ", False), ("yes", True)])
 def test_environment_turns_the_cache_off(monkeypatch, value, on):
     monkeypatch.setenv("JAXANM_COMPILE_CACHE", value)

@@ -9,10 +9,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse
+from model_problems import heat_1d, impulsive_cubic
 
 import jaxanm
 from jaxanm import evaluate_series
-from model_problems import heat_1d, impulsive_cubic
 
 
 def _run(problem, solver, **kw):
@@ -362,7 +362,8 @@ def test_sparse_lu_solves_in_both_orderings(limit, dominant, monkeypatch):
     monkeypatch.setattr(linalg, "SYMMETRIC_MAX_UNKNOWNS", limit)
     n = 60
     rng = np.random.default_rng(5)
-    big = scipy.sparse.identity(n) if dominant == "diagonal" else scipy.sparse.eye(n, k=1) + scipy.sparse.eye(n, k=1 - n)
+    big = (scipy.sparse.identity(n) if dominant == "diagonal"
+           else scipy.sparse.eye(n, k=1) + scipy.sparse.eye(n, k=1 - n))
     a = scipy.sparse.random(n, n, density=0.08, random_state=rng) + 4.0 * big
     b = rng.standard_normal((n, 3))
     lu = linalg.sparse_lu(a)

@@ -34,7 +34,8 @@ def site(tmp_path_factory):
     done = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     warnings = [line for line in done.stderr.splitlines() if "WARNING" in line or "ERROR" in line]
-    assert done.returncode == 0, "mkdocs build --strict failed:\n" + "\n".join(warnings or done.stderr.splitlines()[-30:])
+    assert done.returncode == 0, ("mkdocs build --strict failed:\n"
+                                  + "\n".join(warnings or done.stderr.splitlines()[-30:]))
     return out
 
 

@@ -13,12 +13,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse
+from model_problems import heat_1d, impulsive_cubic
 
 import jaxanm
 from jaxanm import _factorization as linalg
 from jaxanm._problem import Problem
 from jaxanm.stats import Stats
-from model_problems import heat_1d, impulsive_cubic
 
 
 def test_a_released_factorization_solves_by_factorising_again():

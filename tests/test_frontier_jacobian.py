@@ -49,7 +49,8 @@ def test_frontier_tangent_is_the_jacobian_and_keeps_A_S_across_time_steps(monkey
             assert sj._chain, "the residual splits at its stencil sums: the tangent goes through the frontier"
             if not calls:
                 original = sj._chain._seeded_frontier
-                monkeypatch.setattr(sj._chain, "_seeded_frontier", lambda *a: calls.append(1) or original(*a))
+                monkeypatch.setattr(sj._chain, "_seeded_frontier",
+                                    lambda *a, original=original: calls.append(1) or original(*a))
             dense = _dense(residual, x, x_old, dt, params)
             # the same chain rule in another order of operations: round-off of the largest entry
             np.testing.assert_allclose(jac, dense, rtol=0, atol=1e-13 * np.abs(dense).max())

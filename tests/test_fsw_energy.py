@@ -20,9 +20,9 @@ import pytest
 
 import jaxanm
 from jaxanm import mls
+from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.energy import annulus_quadrature, dissipated_power, stored_heat
 from jaxanm.fsw.geometry import PLATE_EDGE, build_cloud, evaluate_stencils
-from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.scene import Geometry, Material, Scene, Thermal, Time
 
 

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from jaxanm.fsw import load_scene, run
-from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, build_stencils
 from jaxanm.fsw.discretisation import discretise
-from jaxanm.fsw.scene import SceneError
+from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, build_stencils
 from jaxanm.fsw.lagrangian import RunRecorder
+from jaxanm.fsw.scene import SceneError
 
 
 @pytest.mark.parametrize("value", ["1.0", "-0.1", "1.5"])

@@ -16,11 +16,20 @@ import pytest
 
 import jaxanm
 from jaxanm.fsw import geometry
-from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud, build_stencils
 from jaxanm.fsw.discretisation import discretise, make_model
+from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud, build_stencils
 from jaxanm.fsw.physics import mu_reference
-from jaxanm.fsw.scene import (EFFECTS, Geometry, Material, Scene, SceneError, Time, load_scene,
-                              override_keys, shipped_scenes)
+from jaxanm.fsw.scene import (
+    EFFECTS,
+    Geometry,
+    Material,
+    Scene,
+    SceneError,
+    Time,
+    load_scene,
+    override_keys,
+    shipped_scenes,
+)
 
 ALL_EULERIAN = ("inertia", "viscous", "softening", "conduction", "tool_conduction", "dissipation",
                 "robin", "tracers")

@@ -21,11 +21,11 @@ import numpy as np
 import pytest
 
 import jaxanm
-from jaxanm.fsw.axisymmetric import rise_error, solve
+from jaxanm.fsw.axisymmetric import solve
 from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.energy import dissipated_power, stored_heat
 from jaxanm.fsw.geometry import PLATE_EDGE
-from jaxanm.fsw.scene import Geometry, Material, Scene, SceneError, Thermal, Time, Tool, load_scene
+from jaxanm.fsw.scene import Geometry, Material, Scene, Thermal, Time, Tool, load_scene
 
 GRADED = dict(layout="graded", dr=1e-4, band=2e-4, grading=1.25, dr_far=3.75e-4, c=0.3)
 """A graded cloud (0.1 mm at the tool edge, fsw_graded's grading; 1501 points)."""

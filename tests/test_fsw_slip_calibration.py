@@ -9,11 +9,10 @@ import sys
 from pathlib import Path
 
 import jax.numpy as jnp
-import numpy as np
 import pytest
 
 import jaxanm
-from jaxanm.fsw import calibration, load_scene
+from jaxanm.fsw import calibration
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
 import calibrate_weld  # noqa: E402

@@ -13,8 +13,8 @@ import pytest
 
 import jaxanm
 from jaxanm.fsw import axisymmetric, simulate
-from jaxanm.fsw.geometry import PLATE, RING
 from jaxanm.fsw.discretisation import discretise
+from jaxanm.fsw.geometry import PLATE, RING
 from jaxanm.fsw.scene import SceneError, load_scene
 from jaxanm.fsw.start import quasi_static_state
 

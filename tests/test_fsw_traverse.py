@@ -16,9 +16,8 @@ import pytest
 import jaxanm
 from jaxanm import mls
 from jaxanm.fsw import run
-from jaxanm.fsw.discretisation import discretise
+from jaxanm.fsw.discretisation import discretise, make_model
 from jaxanm.fsw.geometry import build_cloud, build_stencils, evaluate_stencils
-from jaxanm.fsw.discretisation import make_model
 from jaxanm.fsw.scene import SceneError, load_scene
 
 EULERIAN = "inertia,viscous,softening,conduction,tool_conduction,dissipation,robin,tracers"

@@ -22,8 +22,8 @@ import pytest
 import jaxanm
 from jaxanm.fsw import load_scene, run
 from jaxanm.fsw.axisymmetric import couette_exact, radial_finite_volumes
-from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud
 from jaxanm.fsw.discretisation import discretise
+from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud
 from jaxanm.fsw.scene import Geometry, Material, Scene, Thermal, Time
 
 GAP = 4.5e-3  # R2 - R1 of every scene below

@@ -10,8 +10,8 @@ from scipy.spatial import cKDTree
 import jaxanm
 from jaxanm import mls
 from jaxanm.fsw import discretise, load_scene
-from jaxanm.fsw.geometry import PLATE, _apart, build_stencils, neighbour_list
 from jaxanm.fsw.discretisation import Refit
+from jaxanm.fsw.geometry import PLATE, _apart, build_stencils, neighbour_list
 from jaxanm.fsw.lagrangian import RunRecorder, _rotate
 
 

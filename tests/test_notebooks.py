@@ -58,7 +58,8 @@ test_calibration, test_continuation). The quickstart and the accuracy-cost noteb
 default."""
 
 
-@pytest.mark.parametrize("path", [pytest.param(p, id=p.stem, marks=[pytest.mark.slow] if p.stem in SLOW_NOTEBOOKS else [])
+@pytest.mark.parametrize("path", [pytest.param(p, id=p.stem,
+                                               marks=[pytest.mark.slow] if p.stem in SLOW_NOTEBOOKS else [])
                                   for p in NOTEBOOKS])
 def test_notebook_executes(path):
     """Run all cells in a fresh kernel (working directory: notebooks/); any error fails the test."""

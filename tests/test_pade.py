@@ -11,9 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxanm import InputError
+from jaxanm import InputError, evaluate_series, validity_range
 from jaxanm import _pade as pade
-from jaxanm import evaluate_series, validity_range
 
 EPS = np.finfo(float).eps
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from model_problems import bratu_1d, heat_1d
 
 import jaxanm
 from jaxanm import sensitivity
-from model_problems import bratu_1d, heat_1d
 
 
 def _observe(t, x, p):

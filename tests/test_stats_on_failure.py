@@ -17,11 +17,11 @@ import dataclasses
 import json
 
 import pytest
+from model_problems import impulsive_cubic
 
 import jaxanm
 import jaxanm._problem
 from jaxanm.checkpoint import read
-from model_problems import impulsive_cubic
 
 STRICT = jaxanm.ANM(order=4, tol=1e-8, max_substeps=2)
 FACTORIZE = jaxanm._problem.factorize

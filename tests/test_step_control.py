@@ -79,8 +79,9 @@ def test_tighter_tolerance_gives_smaller_global_error_and_more_steps():
 
 
 def test_save_times_are_hit_exactly_and_a_too_large_step_is_refused():
-    sol = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, t0=0.0, t1=1.0, dt=0.01, saveat=jaxanm.SaveAt(ts=[0.3, 0.7]),
-                           controller=jaxanm.StepController(rtol=0.0, atol=1e-6), solver=jaxanm.Newton(tol=1e-12))
+    sol = jaxanm.integrate(decay, np.ones(1), {"lam": LAM}, t0=0.0, t1=1.0, dt=0.01,
+                           saveat=jaxanm.SaveAt(ts=[0.3, 0.7]), controller=jaxanm.StepController(rtol=0.0, atol=1e-6),
+                           solver=jaxanm.Newton(tol=1e-12))
     assert list(sol.ts) == [0.0, 0.3, 0.7, 1.0]
     # first step unchecked at 0.01 (LE ~ 4.5e-4 > atol): the second, proposed equal, is refused
     assert sol.stats.rejected_steps >= 1
@@ -133,8 +134,8 @@ def test_controller_must_be_a_step_controller():
 def test_fsw_scene_with_adaptive_steps():
     """time.adaptive on the Lagrangian fsw_small: steps end exactly on the scene's save times,
     stay within the point-motion bound, and the probes are recorded at every accepted step."""
-    from jaxanm.fsw.scene import load_scene
     from jaxanm.fsw.lagrangian import motion_dt_max
+    from jaxanm.fsw.scene import load_scene
     from jaxanm.fsw.simulate import run
 
     scene = load_scene("fsw_small").with_overrides({"time.adaptive": "true", "time.atol": "1e-5", "time.t_end": "0.003",

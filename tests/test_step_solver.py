@@ -6,10 +6,10 @@ import dataclasses
 
 import numpy as np
 import pytest
+from model_problems import heat_1d, impulsive_cubic
 
 import jaxanm
 from jaxanm._problem import Problem
-from model_problems import heat_1d, impulsive_cubic
 
 
 @dataclasses.dataclass(frozen=True)

@@ -26,9 +26,9 @@ import math
 
 import numpy as np
 import pytest
+import stiff_problems
 
 import jaxanm
-import stiff_problems
 from jaxanm.errors import InputError
 
 CONTROLLER = jaxanm.StepController(rtol=1e-4, atol=1e-8)

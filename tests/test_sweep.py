@@ -21,8 +21,7 @@ import pytest
 from jaxanm import cli
 from jaxanm.errors import InputError
 from jaxanm.fsw.scene import SCENES_DIR, SolverSpec
-from jaxanm.sweep import GridError, grid_from_dict, read_grid, run_sweep
-from jaxanm.sweep import runner
+from jaxanm.sweep import GridError, grid_from_dict, read_grid, run_sweep, runner
 from jaxanm.sweep.grid import IDA, SOLVER_KEYS
 from jaxanm.sweep.pareto import pareto_front
 from jaxanm.sweep.table import ERROR_COLUMNS, add_errors, columns
@@ -131,7 +130,8 @@ def test_solver_keys_cover_the_scene_solver_fields():
      "task 'tol=2.0': scene field 'solver.tol' = 2.0 is invalid: must be in (0, 1)"),
     ({"reference": "newton", "solvers": {"tol": [1e-6, 1e-8]}},
      "reference = 'newton' is not a task of this grid; its tasks are 'tol=1e-06', 'tol=1e-08'"),
-    ({"solver": {"tol": 1e-6}}, "unknown top-level key 'solver'; the keys are scene, reference, warmup, overrides, solvers"),
+    ({"solver": {"tol": 1e-6}},
+     "unknown top-level key 'solver'; the keys are scene, reference, warmup, overrides, solvers"),
     ({"scene": "no_such_scene"}, "scene = 'no_such_scene': unknown scene"),
     ({"scene": 3}, "give the base scene as scene = \"NAME\""),
     ({"solvers": [{}]}, "[[solvers]] #1 is empty"),
@@ -180,7 +180,8 @@ RICHARDSON = {"richardson": {"dt": 0.025, "kind": "mnewton", "tol": 1e-10}}
     ({"scene": "fsw_small", "solvers": {"kind": "ida"}}, "IDA needs fixed points and scene 'fsw_small' is Lagrangian"),
     ({"scene": "conduction_small", "solvers": {"kind": "ida", "rtol": 2.0}}, "rtol = 2.0 must be a number in (0, 1)"),
     ({"scene": "conduction_small", "solvers": {"kind": "ida", "atol": -1.0}}, "atol = -1.0 must be a number >= 0"),
-    ({"scene": "conduction_small", "solvers": {"kind": "ida", "max_order": 6}}, "max_order = 6 must be an integer from 1"),
+    ({"scene": "conduction_small", "solvers": {"kind": "ida", "max_order": 6}},
+     "max_order = 6 must be an integer from 1"),
     ({"scene": "conduction_small", "solvers": {"kind": "ida", "tol": 1e-6}},
      "'tol': it does not apply to kind = 'ida'; kind 'ida' takes rtol, atol, max_order"),
     ({"overrides": {"time.dt": 0.5}, "solvers": {"kind": "newton", "time.dt": [1.0]}},
@@ -219,7 +220,8 @@ def test_committed_grids_read():
     assert table1.base.name == "fsw_paper" and table1.tasks[0].scene.time.t_end == 0.7
     demo = read_grid(root / "couette_demo.toml")
     assert len(demo.tasks) == 4 and demo.reference in {t.id for t in demo.tasks}
-    # the configurations of benchmarks/results/accuracy_cost_paper.json (30 rows, 5 of them IDA) and the Lagrangian front
+    # the configurations of benchmarks/results/accuracy_cost_paper.json (30 rows, 5 of them IDA) and the
+    # Lagrangian front
     tracers = read_grid(root / "accuracy_cost_tracers.toml")
     assert len(tracers.tasks) == 30 and sum(t.ida is not None for t in tracers.tasks) == 5 and tracers.warmup
     assert tracers.richardson.dt == 5e-5 and tracers.base.name == "fsw_tracers"

@@ -11,8 +11,7 @@ import dataclasses
 import numpy as np
 
 from .. import _pade
-from .._acceptance import (CHECK_LIMIT, CRITERIA, evaluate_series, promised_accuracy, reference_state,
-                           validity_range)
+from .._acceptance import CHECK_LIMIT, CRITERIA, evaluate_series, promised_accuracy, reference_state, validity_range
 from .._problem import SeriesPath
 from ..errors import InputError, NonFiniteError, StepFailure
 from .base import Attempt, AttemptSolver, check_count, check_flag, check_tol
@@ -102,10 +101,10 @@ class _ANMStep(Attempt):
         ``(None, (x, R(x)))`` when a truncated series is accepted on the way."""
         p = self.opts.order
         coeffs = np.zeros((p, d_s.size))
-        coeffs[0] = -self.problem.solve(self.fact, r0)
+        coeffs[0] = -self.problem.solve(self.factorized(), r0)
         for j in range(2, p + 1):
             rj = path.next(coeffs[j - 2])
-            coeffs[j - 1] = coeffs[j - 2] - self.problem.solve(self.fact, rj)
+            coeffs[j - 1] = coeffs[j - 2] - self.problem.solve(self.factorized(), rj)
             if self.opts.adaptive and j < p:
                 accepted = self._accept_early(coeffs[:j], d_s, *args)
                 if accepted is not None:

@@ -195,6 +195,12 @@ class Attempt(abc.ABC):
     def run(self, step: int, x_old, t, dt, params) -> tuple[np.ndarray, np.ndarray | None]:
         """The accepted state and the residual there, or None when not evaluated: ``(x, R(x))``."""
 
+    def factorized(self) -> Factorization:
+        """``fact`` at a solve, which the algorithm has factorised (or kept) before solving."""
+        if self.fact is None:
+            raise RuntimeError(f"{type(self).__name__} solves with K* before factorising it")
+        return self.fact
+
     def drop_factorization(self) -> None:
         """Give up the K* (the next factorisation is made where it is needed), its factors
         freed unless retained: one LU alive (the rule of :class:`StepSolver`)."""
@@ -216,7 +222,9 @@ class AttemptSolver(StepSolver):
         try:
             x, residual = attempt.run(step, x_old, t, dt, params)
         except StepFailure as failure:
-            raise failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None))
+            # the same exception, with the state to retry from attached: re-raise it as it is
+            failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None))
+            raise
         return x, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=residual)
 
 

@@ -34,9 +34,10 @@ class _NewtonStep(Attempt):
             if just_factored:
                 self.drop_factorization()
                 self.fact = P.factorize_in_step(step, x, x_old, t, dt, params, residual_norm=r_norm)
-            dx = -P.solve(self.fact, r)
+            dx = -P.solve(self.factorized(), r)
             size = P.norm(dx)
-            if (not just_factored and previous is not None and size > self.opts.max_rate * previous) or not np.isfinite(size):
+            slow = not just_factored and previous is not None and size > self.opts.max_rate * previous
+            if slow or not np.isfinite(size):
                 if just_factored:
                     raise NonFiniteError("Newton correction is not finite", step=step, t=t, residual_norm=r_norm)
                 self.drop_factorization()  # slow or diverging with an old Jacobian: rebuild it here
@@ -60,6 +61,9 @@ class _NewtonIteration(AttemptSolver):
     ``reuses_factorization``)."""
 
     attempt = _NewtonStep
+    tol: float
+    max_iter: int
+    max_rate: float  # ModifiedNewton's; read only when reuses_factorization
 
 
 @dataclasses.dataclass(frozen=True)

@@ -475,11 +475,11 @@ def _solve(scene: Scene, times, steps_at, dt: float, scheme: str, edges: np.ndar
 
     record = _Record(cond, flow, plate_edges, T0)
     save = {int(n) for n in steps_at}
-    T = np.full(rc.size, T0)
+    T_start = np.full(rc.size, T0)
     if 0 in save:
-        record(T)
+        record(T_start)
     n_total = int(steps_at[-1]) if len(steps_at) else 0
-    for n, T in _steps(cond, sources, T, n_total, dt, scheme, scene.has("conduction"), _rise_tolerance() * T0):
+    for n, T in _steps(cond, sources, T_start, n_total, dt, scheme, scene.has("conduction"), _rise_tolerance() * T0):
         if n in save:
             record(T)
     return record.solution(scene, times, steps_at, edges, rc)

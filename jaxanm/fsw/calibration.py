@@ -43,11 +43,11 @@ import numpy as np
 from .. import sensitivity
 from .._x64 import entry_point
 from ..errors import InputError, StepFailure
-from .geometry import evaluate_stencils
 from .discretisation import discretise
+from .geometry import evaluate_stencils
 from .physics import complete_fields
-from .scene import Scene
 from .record import ProbeSites
+from .scene import Scene
 
 __all__ = ["PARAMETERS", "FitResult", "fit", "gauss_newton", "material_theta", "simulate", "theta_to_material",
            "value_and_grad", "weighted_residuals"]

@@ -21,8 +21,8 @@ import math
 import numpy as np
 
 from .. import mls
-from .geometry import build_cloud, build_stencils, evaluate_stencils
 from .discretisation import make_model
+from .geometry import build_cloud, build_stencils, evaluate_stencils
 from .physics import complete_fields, viscosity
 
 __all__ = ["annulus_quadrature", "dissipated_power", "stored_heat"]

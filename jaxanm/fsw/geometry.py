@@ -36,8 +36,8 @@ from .. import mls
 from .._x64 import entry_point
 from .scene import Geometry
 
-__all__ = ["Cloud", "build_cloud", "build_stencils", "edge_spacing", "evaluate_stencils", "neighbour_list", "rigid", "spacing",
-           "TOOL", "TOOL_EDGE", "PLATE_EDGE", "PLATE", "RING"]
+__all__ = ["Cloud", "build_cloud", "build_stencils", "edge_spacing", "evaluate_stencils", "neighbour_list", "rigid",
+           "spacing", "TOOL", "TOOL_EDGE", "PLATE_EDGE", "PLATE", "RING"]
 
 TOOL, TOOL_EDGE, PLATE_EDGE, PLATE, RING = range(5)
 """Point kinds (the row each point carries in the model)."""

@@ -28,10 +28,10 @@ import numpy as np
 
 import jaxanm
 
-from .geometry import evaluate_stencils
 from .discretisation import discretise
-from .scene import Scene
+from .geometry import evaluate_stencils
 from .record import FSWResult, ProbeSites
+from .scene import Scene
 
 __all__ = ["IDA_DEFAULTS", "run_ida"]
 

@@ -89,7 +89,8 @@ def oscillation(times, values, window=(0.05, 0.3), degree: int = 3) -> Oscillati
     amplitude = float(np.sqrt(2.0 * np.mean(residual ** 2)))
     mean = float(y.mean())
     return Oscillation(amplitude=amplitude, relative=amplitude / abs(mean) if mean != 0 else float("inf"),
-                       half_range=0.5 * float(residual.max() - residual.min()), mean=mean, frequency=_dominant_frequency(t, residual), samples=int(t.size))
+                       half_range=0.5 * float(residual.max() - residual.min()), mean=mean,
+                       frequency=_dominant_frequency(t, residual), samples=int(t.size))
 
 
 def _dominant_frequency(t: np.ndarray, residual: np.ndarray) -> float:

@@ -28,9 +28,31 @@ import tomllib
 from pathlib import Path
 
 from .scene_sections import (  # noqa: F401 - re-exported: the sections are part of this module's API
-    EDGE_ROWS, EDGE_SOURCES, LAYOUTS, MAX_ORDER, MAX_POINTS, MAX_SAMPLES, MAX_STEPS, SOLVER_KINDS,
-    SOLVER_NAMES, STARTS, Geometry, Material, Mechanics, Probe, SceneError, Section, SolverSpec,
-    Thermal, Time, Tool, _NAME_CHARS, _as_str, _as_strs, _check)
+    _NAME_CHARS,
+    EDGE_ROWS,
+    EDGE_SOURCES,
+    LAYOUTS,
+    MAX_ORDER,
+    MAX_POINTS,
+    MAX_SAMPLES,
+    MAX_STEPS,
+    SOLVER_KINDS,
+    SOLVER_NAMES,
+    STARTS,
+    Geometry,
+    Material,
+    Mechanics,
+    Probe,
+    SceneError,
+    Section,
+    SolverSpec,
+    Thermal,
+    Time,
+    Tool,
+    _as_str,
+    _as_strs,
+    _check,
+)
 
 __all__ = [
     "EDGE_ROWS",

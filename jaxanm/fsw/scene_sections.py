@@ -15,8 +15,8 @@ import dataclasses
 import math
 import re
 
-from ..errors import InputError
 from .._solver import make_solver, solver_kinds
+from ..errors import InputError
 
 __all__ = [
     "EDGE_ROWS",

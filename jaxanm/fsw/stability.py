@@ -257,8 +257,9 @@ class TemperatureGuard:
     far (this step's included) if that is larger.  A spurious mode has lobes of both signs (it
     is orthogonal to the smooth physical decay), so its trough crosses the lower bound once it
     is deeper than ``margin`` times its own crest: a mode that heats much more than it cools,
-    or that stays below the physical heating, is not caught.  Nodal parameters are checked, not values: they are what the
-    step carries, and they differ from the values by a smoothing of condition number ~3.
+    or that stays below the physical heating, is not caught.  Nodal parameters are checked, not
+    values: they are what the step carries, and they differ from the values by a smoothing of
+    condition number ~3.
 
     Parameters
     ----------

@@ -26,9 +26,10 @@ in the parameter ``lam = -ln(eps0_eff / eps0)``.  The law's branch points ``epsb
 each point, so along the whole path the branch is analytic only in a strip of half-width
 pi/2: each series reaches about a radian, whatever its order, and the path of length s0
 takes of the order of s0 steps, each with its own factorisation
-(docs/notes/start_from_rest.md has the measurements against the damped-Newton start).  (The 1-D Couette profile fitted to the cloud is no better a start:
-13 -> 10 iterations on the 0.075 mm graded cloud, but 10 -> 17 on a coarse graded one, where
-its MLS fit oscillates; the note has the table.)
+(docs/notes/start_from_rest.md has the measurements against the damped-Newton start).
+The 1-D Couette profile fitted to the cloud is no better a start: it saves Newton iterations
+on a fine graded cloud but costs some on a coarse one, where its MLS fit oscillates (the note
+has the table).
 """
 
 from __future__ import annotations
@@ -38,11 +39,11 @@ import time
 
 import numpy as np
 
+from .._factorization import factorize
+from .._problem import Problem, _relative_change
 from .._x64 import entry_point
 from ..continuation import continuation
 from ..errors import StepFailure
-from .._factorization import factorize
-from .._problem import Problem, _relative_change
 from ..stats import Stats
 from .discretisation import Model, make_model
 
