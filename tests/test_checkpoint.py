@@ -159,20 +159,25 @@ def test_unreadable_checkpoint_is_an_input_error(tmp_path):
 
 
 def test_fsw_host_state_refuses_another_scene():
-    """simulate.run's checkpointed host state: the recorder round-trips; another scene is refused."""
-    from types import SimpleNamespace
-
+    """simulate.run's checkpointed host state: the recorder round-trips through its layout;
+    another scene is refused."""
+    from jaxanm.fsw.lagrangian import RunRecorder
     from jaxanm.fsw.scene import load_scene
     from jaxanm.fsw.simulate import _host_state
 
+    def recorder(value):  # the layout methods need only the attributes they store
+        rec = object.__new__(RunRecorder)
+        for name in RunRecorder.CHECKPOINTED:
+            setattr(rec, name, value)
+        return rec
+
     scene = load_scene("couette_small")
-    recorder = SimpleNamespace(scene=scene, model=None, step=3, probes={"t": [0.0, 1.0]}, points=np.ones((2, 2)))
-    get, _ = _host_state(scene, recorder, {"checkpoint_every": 2})
+    get, _ = _host_state(scene, recorder(np.ones((2, 2))), {"checkpoint_every": 2})
     snapshot = get()
-    assert "scene" not in snapshot["recorder"] and snapshot["recorder"]["step"] == 3
-    fresh = SimpleNamespace(scene=scene, model=None, step=0, probes={"t": []}, points=np.zeros((2, 2)))
+    assert snapshot["settings"] == {"checkpoint_every": 2} and snapshot["scene"] == scene.to_dict()
+    fresh = recorder(np.zeros((2, 2)))
     _host_state(scene, fresh, {})[1](snapshot)
-    assert fresh.step == 3 and fresh.probes == {"t": [0.0, 1.0]} and np.all(fresh.points == 1)
+    assert all(np.all(getattr(fresh, name) == 1) for name in RunRecorder.CHECKPOINTED)
     other = scene.with_overrides({"material.n": "0.5", "time.dt": "0.5"})
     with pytest.raises(jaxanm.InputError, match=r"another scene \(material.n, time.dt differ\)"):
         _host_state(other, fresh, {})[1](snapshot)

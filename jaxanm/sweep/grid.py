@@ -77,8 +77,8 @@ IDA = "ida"
 """The grid kind of IDA tasks (no scene solver: :mod:`jaxanm.fsw.ida_scene`)."""
 SOLVER_KEYS = {
     "anm": ("order", "tol", "criterion", "max_substeps", "adaptive", "homotopy", "pade"),
-    "newton": ("tol",),
-    "mnewton": ("tol", "max_rate"),
+    "newton": ("tol", "max_iter"),
+    "mnewton": ("tol", "max_iter", "max_rate"),
     IDA: ("rtol", "atol", "max_order"),
 }
 """Solver settings that apply to each kind (``solver.*`` scene fields besides ``kind``; IDA's own)."""
