@@ -43,7 +43,7 @@ import numpy as np
 import jaxanm
 from jaxanm.fsw.axisymmetric import radial_finite_volumes
 from jaxanm.fsw.discretisation import discretise, make_model
-from jaxanm.fsw.geometry import PLATE, build_cloud, build_stencils
+from jaxanm.fsw.geometry import PLATE, build_cloud, cloud_stencils
 from jaxanm.fsw.physics import mu_reference
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.simulate import run as fsw_run
@@ -344,7 +344,7 @@ def near_coincident(delta, solver=None):
         points = cloud.points.copy()
         away = points[plate[0]] - points[nearest]
         points[plate[0]] = points[nearest] + delta * scene.geometry.dr * away / np.linalg.norm(away)
-        stencils = build_stencils(points, cloud.n_tool, scene.geometry)  # InputError if they coincide
+        stencils = cloud_stencils(points, cloud.n_tool, scene.geometry)  # InputError if they coincide
         model = make_model(scene, cloud)
         params = model.params(points, stencils)
         x0 = model.initial_state(points)

@@ -29,7 +29,7 @@ PARTS = [  # (owner, attribute, label); indented labels are parts of the row abo
     (lagrangian.RunRecorder, "after_step", "hook (after_step)"),
     (discretisation.Model, "values", "  values at the points"),
     (lagrangian.RunRecorder, "_sheared", "  shear test"),
-    (lagrangian, "build_stencils", "  stencil rebuild"),
+    (lagrangian, "cloud_stencils", "  stencil rebuild"),
     (mls.NeighbourList, "query", "    neighbour query"),
     (mls, "_run_kernel", "    MLS kernel"),
     (discretisation.Model, "fit_state", "  refit"),

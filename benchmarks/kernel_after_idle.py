@@ -28,7 +28,7 @@ import numpy as np
 from jaxanm import mls
 from jaxanm._factorization import sparse_lu
 from jaxanm.fsw import discretise, load_scene
-from jaxanm.fsw.geometry import build_stencils
+from jaxanm.fsw.geometry import cloud_stencils
 
 
 def kernel_inputs(points, n_tool, geometry, m_max):
@@ -42,7 +42,7 @@ def kernel_inputs(points, n_tool, geometry, m_max):
 
     mls._run_kernel = capture
     try:
-        build_stencils(points, n_tool, geometry, m_max=m_max)
+        cloud_stencils(points, n_tool, geometry, m_max=m_max)
     finally:
         mls._run_kernel = original
     return captured[0][:6]  # x, y, mask, h, c, q (without the derivatives flag)

@@ -97,7 +97,7 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
     values = model.values(x, st)
     full = model.full_values(values)
     moved = sim._move(recorder.points, kind, sim._velocity(full), omega, dt)
-    new_st = sim.build_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width)
+    new_st = sim.cloud_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width)
     fresh = lambda: copy.deepcopy(recorder)  # noqa: E731 - every timed call sees the same step
     parts = {}
     parts["values (model.values)"] = median_ms(lambda _: model.values(x, st), repeats)
@@ -110,11 +110,11 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
                                     repeats, fresh)
     if hasattr(recorder, "neighbours"):  # as the hook rebuilds: with the run's candidate lists
         parts["stencils (total)"] = median_ms(
-            lambda r: sim.build_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width, neighbours=r.neighbours),
+            lambda r: sim.cloud_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width, neighbours=r.neighbours),
             repeats, fresh)
     else:
         parts["stencils (total)"] = median_ms(
-            lambda _: sim.build_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width), repeats)
+            lambda _: sim.cloud_stencils(moved, model.cloud.n_tool, g, m_max=recorder.width), repeats)
     # the stencil rebuild's two halves: neighbour search, MLS kernel (how mls._stencils calls them)
     apart = _apart(moved, model.cloud.n_tool, g)
     h = np.full(len(apart), g.h_factor * g.dr)

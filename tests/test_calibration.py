@@ -134,7 +134,7 @@ def _fsw_loss(obs, theta):
 def test_fsw_gradient_matches_central_differences(solver):
     scene = _short_scene()
     theta = calibration.material_theta(scene)
-    value, grad = calibration.value_and_grad(_fsw_loss, scene, theta, solver=solver)
+    value, grad = calibration.scene_value_and_grad(_fsw_loss, scene, theta, solver=solver)
     assert isinstance(value, np.float64) and all(isinstance(g, np.float64) for g in grad.values())
     steps = {"logK": 1e-4, "A": 1e-5, "n": 1e-6}
     for key, h in steps.items():
@@ -165,12 +165,12 @@ def test_fsw_bad_input_gives_clear_errors():
     scene = _short_scene()
     theta = calibration.material_theta(scene)
     with pytest.raises(jaxanm.InputError, match="unknown calibration parameter.*'k0'"):
-        calibration.value_and_grad(_fsw_loss, scene, {**theta, "k0": 1.0})
+        calibration.scene_value_and_grad(_fsw_loss, scene, {**theta, "k0": 1.0})
     with pytest.raises(jaxanm.InputError, match="both 'logK' and 'K'"):
         calibration.simulate(scene, {**theta, "K": 1.0})
     lagrangian = scene.with_overrides({"effects": list(scene.effects) + ["lagrangian"]})
     with pytest.raises(jaxanm.InputError, match="lagrangian.*tracers"):
-        calibration.value_and_grad(_fsw_loss, lagrangian, theta)
+        calibration.scene_value_and_grad(_fsw_loss, lagrangian, theta)
     with pytest.raises(jaxanm.InputError, match="T0 and omega"):
         calibration.simulate(scene, {"T0": 300.0})
 

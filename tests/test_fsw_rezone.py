@@ -14,7 +14,7 @@ import pytest
 
 from jaxanm.fsw import load_scene, run
 from jaxanm.fsw.discretisation import discretise
-from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, build_stencils
+from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, cloud_stencils
 from jaxanm.fsw.lagrangian import RunRecorder
 from jaxanm.fsw.scene import SceneError
 
@@ -43,7 +43,7 @@ def test_rezone_reseeds_the_plate_and_remaps_a_quadratic_field_exactly():
     c, s = np.cos(0.3), np.sin(0.3)
     rigid = cloud.kind <= PLATE_EDGE
     sheared[rigid] = sheared[rigid] @ np.array([[c, s], [-s, c]])
-    st = build_stencils(sheared, cloud.n_tool, scene.geometry, m_max=rec.width)
+    st = cloud_stencils(sheared, cloud.n_tool, scene.geometry, m_max=rec.width)
     x = model.fit_state(_quadratic(sheared), st)
     rec.points = sheared
     values = rec._rezone(x, model.values(x, st))

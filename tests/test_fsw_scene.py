@@ -17,7 +17,7 @@ import pytest
 import jaxanm
 from jaxanm.fsw import geometry
 from jaxanm.fsw.discretisation import discretise, make_model
-from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud, build_stencils
+from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud, cloud_stencils
 from jaxanm.fsw.physics import mu_reference
 from jaxanm.fsw.scene import (
     EFFECTS,
@@ -253,7 +253,7 @@ def test_paper_cloud_layout():
 def test_stencils_never_cross_the_tool_edge():
     g = Geometry(dr=7.5e-4)
     c = build_cloud(g)
-    st = build_stencils(c.points, c.n_tool, g)
+    st = cloud_stencils(c.points, c.n_tool, g)
     tool_side = np.asarray(st.index) < c.n_tool
     assert np.all(tool_side[: c.n_tool]) and not np.any(tool_side[c.n_tool:])
     # one-sided stencils still reproduce quadratics on each side

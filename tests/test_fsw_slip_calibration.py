@@ -29,7 +29,7 @@ def test_contact_state_gradient_matches_central_differences():
     """Two 4 ms steps of the example's experiment: d loss / d delta and d loss / d log K."""
     scene = calibrate_weld.weld_experiment().with_overrides({"time.t_end": 8e-3})
     theta = {"logK": math.log(scene.material.K), "delta": 0.7}
-    value, grad = calibration.value_and_grad(_loss, scene, theta)
+    value, grad = calibration.scene_value_and_grad(_loss, scene, theta)
     for key, h in {"delta": 1e-5, "logK": 1e-5}.items():
         values = []
         for sign in (1, -1):

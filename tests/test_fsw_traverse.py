@@ -17,7 +17,7 @@ import jaxanm
 from jaxanm import mls
 from jaxanm.fsw import run
 from jaxanm.fsw.discretisation import discretise, make_model
-from jaxanm.fsw.geometry import build_cloud, build_stencils, evaluate_stencils
+from jaxanm.fsw.geometry import build_cloud, cloud_stencils, evaluate_stencils
 from jaxanm.fsw.scene import SceneError, load_scene
 
 EULERIAN = "inertia,viscous,softening,conduction,tool_conduction,dissipation,robin,tracers"
@@ -67,7 +67,7 @@ def travelling():
     res = run(scene)
     cloud = build_cloud(scene.geometry)
     model = make_model(scene, cloud)
-    st = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
+    st = cloud_stencils(cloud.points, cloud.n_tool, scene.geometry)
     nodal = model.split(model.fit_state(np.stack([res.u[-1], res.v[-1], res.T[-1]], 1), st))
 
     def at(pts):

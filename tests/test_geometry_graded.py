@@ -11,7 +11,7 @@ import pytest
 
 from jaxanm import mls
 from jaxanm.fsw import geometry as G
-from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud, build_stencils
+from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_cloud, cloud_stencils
 from jaxanm.fsw.scene import Geometry, SceneError, load_scene
 
 GRADED = dict(layout="graded", dr=8.5e-5, band=1.7e-4, dr_far=3.75e-4, grading=1.25, c=0.3)
@@ -23,7 +23,7 @@ def graded():
     """(geometry, cloud, stencils) of the fsw_graded scene's layout."""
     g = Geometry(**GRADED)
     cloud = build_cloud(g)
-    return g, cloud, build_stencils(cloud.points, cloud.n_tool, g)
+    return g, cloud, cloud_stencils(cloud.points, cloud.n_tool, g)
 
 
 def _radii(points):
@@ -91,7 +91,7 @@ def test_stencils_reproduce_quadratics_with_a_radius_per_point(graded):
 
 
 def test_targets_at_the_points_get_the_points_stencils(graded):
-    """evaluate_stencils uses the same radius at a position as build_stencils at a point there."""
+    """evaluate_stencils uses the same radius at a position as cloud_stencils at a point there."""
     g, cloud, st = graded
     sample = np.arange(0, cloud.size, 7)
     sample = sample[np.isin(cloud.kind[sample], (TOOL, PLATE))]  # off the edge (side chosen by r)

@@ -11,7 +11,7 @@ import jaxanm
 from jaxanm import mls
 from jaxanm.fsw import discretise, load_scene
 from jaxanm.fsw.discretisation import Refit
-from jaxanm.fsw.geometry import PLATE, _apart, build_stencils, neighbour_list
+from jaxanm.fsw.geometry import PLATE, _apart, cloud_stencils, neighbour_list
 from jaxanm.fsw.lagrangian import RunRecorder, _rotate
 
 
@@ -63,10 +63,10 @@ def test_stencils_with_the_neighbour_list_match_a_fresh_build():
     cloud, st0, *_ = discretise(scene)
     m = st0.index.shape[1]
     nl = neighbour_list(g)
-    build_stencils(cloud.points, cloud.n_tool, g, m_max=m, neighbours=nl)
+    cloud_stencils(cloud.points, cloud.n_tool, g, m_max=m, neighbours=nl)
     pts = _sheared_cloud(cloud, g.dr, amount=0.05, angle=0.01)
-    ref = build_stencils(pts, cloud.n_tool, g, m_max=m)
-    new = build_stencils(pts, cloud.n_tool, g, m_max=m, neighbours=nl)
+    ref = cloud_stencils(pts, cloud.n_tool, g, m_max=m)
+    new = cloud_stencils(pts, cloud.n_tool, g, m_max=m, neighbours=nl)
     assert nl.rebuilds == 1
     f = np.random.default_rng(2).standard_normal(cloud.size)
     for op in (mls.value, mls.laplacian):
@@ -86,7 +86,7 @@ def test_refit_iterations_give_the_direct_fit_and_pickle_exactly():
     pts = cloud.points.copy()
     for k in range(3):
         pts = _sheared_cloud(cloud, g.dr, seed=k, amount=0.01 * (k + 1), angle=2e-3 * (k + 1))
-        st = build_stencils(pts, cloud.n_tool, g, m_max=m)
+        st = cloud_stencils(pts, cloud.n_tool, g, m_max=m)
         direct = model.fit_state(values, st)
         x = model.fit_state(values, st, refit)
         X, D = x.reshape(len(model.fields), -1), direct.reshape(len(model.fields), -1)
@@ -98,14 +98,14 @@ def test_refit_iterations_give_the_direct_fit_and_pickle_exactly():
     # From a guess: the state fitted on the previous stencils, as a Lagrangian run passes the
     # state it solved.  The same fixed point, to the iterations' tolerance (1e-15 of max |x|)
     # plus the direct solve's own error (cond(Phi) eps, cond ~ 3): within 1e-14.
-    st_next = build_stencils(_sheared_cloud(cloud, g.dr, seed=5, amount=0.04, angle=8e-3), cloud.n_tool, g, m_max=m)
+    st_next = cloud_stencils(_sheared_cloud(cloud, g.dr, seed=5, amount=0.04, angle=8e-3), cloud.n_tool, g, m_max=m)
     direct = model.fit_state(values, st_next)
     x = model.fit_state(values, st_next, refit, guess=model.fit_state(values, st))
     X, D = x.reshape(len(model.fields), -1), direct.reshape(len(model.fields), -1)
     assert np.all(np.abs(X - D).max(axis=1) <= 1e-14 * np.abs(D).max(axis=1))
     assert refit.iterations[-1] > 0
     copy = pickle.loads(pickle.dumps(refit))
-    st = build_stencils(_sheared_cloud(cloud, g.dr, seed=9, amount=0.04), cloud.n_tool, g, m_max=m)
+    st = cloud_stencils(_sheared_cloud(cloud, g.dr, seed=9, amount=0.04), cloud.n_tool, g, m_max=m)
     np.testing.assert_array_equal(model.fit_state(values, st, copy), model.fit_state(values, st, refit))
 
 
@@ -115,7 +115,7 @@ def test_shear_test_from_the_stencils_agrees_with_the_kdtree():
     rec = RunRecorder(scene, model, stencils, x0, save_times=frozenset())
     for amount in (0.02, 0.3):
         rec.points = _sheared_cloud(cloud, scene.geometry.dr, amount=amount)
-        st = build_stencils(rec.points, cloud.n_tool, scene.geometry, m_max=rec.width)
+        st = cloud_stencils(rec.points, cloud.n_tool, scene.geometry, m_max=rec.width)
         assert rec._sheared(np.asarray(st.index)) == rec._sheared()
     assert rec._sheared()  # 0.3 dr of shear is too much
 

@@ -4,7 +4,7 @@ The plate's viscosity is ``mu = K T^A epsbar^(n-1) / 3``.  :func:`simulate` runs
 forward sensitivities (:mod:`jaxanm.sensitivity`) and returns the observations — MLS values
 of u, v, T at the scene's registration points (probes) and along its registration sections,
 at t = 0 and after every step — together with their Jacobian with respect to ``theta``;
-:func:`value_and_grad` turns a loss of those observations into a float64 value and gradient
+:func:`scene_value_and_grad` turns a loss of those observations into a float64 value and gradient
 for optax.
 
 ``theta`` is a dict of material / thermal constants of the model (:data:`PARAMETERS`), usually
@@ -24,7 +24,7 @@ What is (not) differentiated:
   the row scaling.  Row scaling does not change the discrete solution, hence not its
   derivatives.
 - ``T0`` and ``omega`` set the initial state and are not in :data:`PARAMETERS`; calibrate
-  against several scenes (experiments) instead, see :func:`value_and_grad`.
+  against several scenes (experiments) instead, see :func:`scene_value_and_grad`.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ from .record import ProbeSites
 from .scene import Scene
 
 __all__ = ["PARAMETERS", "FitResult", "fit", "gauss_newton", "material_theta", "simulate", "theta_to_material",
-           "value_and_grad", "weighted_residuals"]
+           "scene_value_and_grad", "weighted_residuals"]
 
 PARAMETERS = ("logK", "K", "A", "n", "eps0", "rho", "Cp", "k", "beta", "rho_t", "Cp_t", "k_t", "h", "Ta", "lam",
               "delta")
@@ -194,7 +194,7 @@ def simulate(scene: Scene, theta: dict, *, solver=None, tangents: bool = True) -
 
 
 @entry_point
-def value_and_grad(loss: Callable, scenes, theta: dict, *, solver=None):
+def scene_value_and_grad(loss: Callable, scenes, theta: dict, *, solver=None):
     """Value and gradient of ``loss(observed, theta)`` over one scene or several (experiments).
 
     Parameters

@@ -17,7 +17,7 @@ import scipy.sparse
 
 from .. import mls
 from .._factorization import sparse_lu
-from .geometry import PLATE_EDGE, Cloud, build_cloud, build_stencils, rigid
+from .geometry import PLATE_EDGE, Cloud, build_cloud, cloud_stencils, rigid
 from .physics import CONSTANTS, Effects, complete_fields, mu_reference, residual_for
 from .scene import Scene
 
@@ -280,7 +280,7 @@ class Discretisation(NamedTuple):
 def discretise(scene: Scene) -> Discretisation:
     """Point cloud, MLS stencils, :class:`Model`, residual params and initial state of ``scene``."""
     cloud = build_cloud(scene.geometry)
-    stencils = build_stencils(cloud.points, cloud.n_tool, scene.geometry)
+    stencils = cloud_stencils(cloud.points, cloud.n_tool, scene.geometry)
     model = make_model(scene, cloud)
     return Discretisation(cloud, stencils, model, model.params(cloud.points, stencils),
                           model.initial_state(cloud.points))

@@ -22,7 +22,7 @@ import numpy as np
 
 from .. import mls
 from .discretisation import make_model
-from .geometry import build_cloud, build_stencils, evaluate_stencils
+from .geometry import build_cloud, cloud_stencils, evaluate_stencils
 from .physics import complete_fields, viscosity
 
 __all__ = ["annulus_quadrature", "dissipated_power", "stored_heat"]
@@ -53,7 +53,7 @@ def _fields(result, s: int, targets: np.ndarray) -> dict:
     cloud = build_cloud(scene.geometry)
     model = make_model(scene, cloud)
     points = np.asarray(result.points[s], dtype=np.float64)
-    st = build_stencils(points, cloud.n_tool, scene.geometry)
+    st = cloud_stencils(points, cloud.n_tool, scene.geometry)
     columns = {"u": result.u[s], "v": result.v[s], "T": result.T[s]}
     values = np.stack([np.asarray(columns[f], dtype=np.float64) for f in model.fields], axis=1)
     nodal = model.split(model.fit_state(values, st))

@@ -36,7 +36,7 @@ from .. import mls
 from .._x64 import entry_point
 from .scene import Geometry
 
-__all__ = ["Cloud", "build_cloud", "build_stencils", "edge_spacing", "evaluate_stencils", "neighbour_list", "rigid",
+__all__ = ["Cloud", "build_cloud", "cloud_stencils", "edge_spacing", "evaluate_stencils", "neighbour_list", "rigid",
            "spacing", "TOOL", "TOOL_EDGE", "PLATE_EDGE", "PLATE", "RING"]
 
 TOOL, TOOL_EDGE, PLATE_EDGE, PLATE, RING = range(5)
@@ -219,7 +219,7 @@ def _radius(g: Geometry, points: np.ndarray, n_tool: int):
 
 
 @entry_point
-def build_stencils(points: np.ndarray, n_tool: int, g: Geometry, m_max: int | None = None,
+def cloud_stencils(points: np.ndarray, n_tool: int, g: Geometry, m_max: int | None = None,
                    neighbours: mls.NeighbourList | None = None) -> mls.Stencils:
     """MLS stencils of the cloud: tool ``[0, n_tool)`` and plate nodes never share a stencil.
 
@@ -233,7 +233,7 @@ def build_stencils(points: np.ndarray, n_tool: int, g: Geometry, m_max: int | No
 
 
 def neighbour_list(g: Geometry) -> mls.NeighbourList:
-    """Neighbour candidates for the stencils of a moving cloud (:func:`build_stencils`) or of
+    """Neighbour candidates for the stencils of a moving cloud (:func:`cloud_stencils`) or of
     targets moving with it (:func:`evaluate_stencils`).
 
     Skin h / 4: the lists hold about 1.6 times the stencil's neighbours, and are remade once

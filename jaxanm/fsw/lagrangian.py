@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 import jaxanm
 
 from .discretisation import Model, Refit
-from .geometry import PLATE_EDGE, build_stencils, evaluate_stencils, neighbour_list, rigid
+from .geometry import PLATE_EDGE, cloud_stencils, evaluate_stencils, neighbour_list, rigid
 from .record import Recorder
 from .scene import Scene
 from .start import StartReport
@@ -303,7 +303,7 @@ class RunRecorder(Recorder):
             full = model.full_values(values)
         self.points = _move(self.points, kind, _velocity(full), omega, dt)
         self._record(self.t, material, material_values, save, self._at_probes(material, material_values))
-        st = build_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width,
+        st = cloud_stencils(self.points, model.cloud.n_tool, scene.geometry, m_max=self.width,
                             neighbours=self.neighbours)
         # re-seeded nodes carry other material's values: a step controller restarts its estimate
         return jaxanm.Remap(model.params(self.points, st), model.fit_state(values, st, self.refit, guess=x),

@@ -68,20 +68,30 @@ import re
 import tomllib
 from pathlib import Path
 
-from jaxanm.fsw.scene import SOLVER_NAMES, Scene, SceneError, load_scene, override_keys
+from jaxanm import make_solver
+from jaxanm.fsw.scene import SOLVER_NAMES, Scene, SceneError, SolverSpec, load_scene, override_keys
 
 __all__ = ["IDA", "RICHARDSON", "SOLVER_KEYS", "Grid", "GridError", "Richardson", "Task", "grid_from_dict",
            "read_grid"]
 
 IDA = "ida"
 """The grid kind of IDA tasks (no scene solver: :mod:`jaxanm.fsw.ida_scene`)."""
-SOLVER_KEYS = {
-    "anm": ("order", "tol", "criterion", "max_substeps", "adaptive", "homotopy", "pade"),
-    "newton": ("tol", "max_iter"),
-    "mnewton": ("tol", "max_iter", "max_rate"),
-    IDA: ("rtol", "atol", "max_order"),
-}
-"""Solver settings that apply to each kind (``solver.*`` scene fields besides ``kind``; IDA's own)."""
+
+
+def _solver_keys() -> dict[str, tuple[str, ...]]:
+    """For each registered solver kind, the ``solver.*`` scene fields its solver takes (in the
+    scene's order), from the solver's own fields; IDA's settings besides."""
+    fields = [f.name for f in dataclasses.fields(SolverSpec) if f.name != "kind"]
+    keys = {}
+    for kind in SOLVER_NAMES:
+        takes = {f.name for f in dataclasses.fields(make_solver(kind))}
+        keys[kind] = tuple(name for name in fields if name in takes)
+    return {**keys, IDA: ("rtol", "atol", "max_order")}
+
+
+SOLVER_KEYS = _solver_keys()
+"""Solver settings that apply to each kind (``solver.*`` scene fields besides ``kind``, those the
+kind's solver takes; IDA's own)."""
 RICHARDSON = "richardson"
 """Prefix of the ids of a Richardson reference's tasks."""
 TOP_KEYS = ("scene", "reference", "warmup", "overrides", "solvers")
