@@ -93,8 +93,8 @@ class AffinePath:
     on the device, stacked per frontier value.  Only the non-affine rest is expanded by
     ``jet``, from the kept frontier coefficients, truncated at the k terms known: O(k^2) work
     at order k, so a series of order p costs O(p^2) jet terms.  (Padding every order to
-    p - 1 terms with zeros would cost O(p^3) per series: 488 ms against 79 ms at p = 20 on
-    fsw_paper, benchmarks/results/series_cost.md.)  Beyond :data:`EXACT_TERMS` terms the jet is padded to
+    p - 1 terms with zeros would cost O(p^3) per series; the two are measured in
+    benchmarks/results/series_cost.md.)  Beyond :data:`EXACT_TERMS` terms the jet is padded to
     the next rung of a geometric ladder (:func:`jet_length`): a few compiled jets instead of
     one per order, for at most ``LADDER_GROWTH^2`` times the work of an exact one.
     :meth:`next` appends ``c_k`` and returns ``f_k``.

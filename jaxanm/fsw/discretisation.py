@@ -175,9 +175,9 @@ def _value_csr(index: np.ndarray, phi: np.ndarray, n_nodes: int) -> scipy.sparse
 def _stencil_values(index: np.ndarray, phi: np.ndarray, nodal: np.ndarray) -> np.ndarray:
     """``sum_k phi[i, k] nodal[index[i, k], f]``: values (M, F) of nodal parameters (N, F).
 
-    As one sparse product (:func:`_value_csr`), 2x faster than numpy gathers per field (on
-    fsw_paper: 0.08 against 0.17 ms); the sums run in stencil order, so the values change
-    from the gathers' pairwise sums by round-off only."""
+    As one sparse product (:func:`_value_csr`), faster than numpy gathers per field (measured
+    in benchmarks/results/profile_host_step.md); the sums run in stencil order, so the values
+    change from the gathers' pairwise sums by round-off only."""
     return _value_csr(index, phi, nodal.shape[0]) @ nodal
 
 
@@ -200,12 +200,10 @@ class Refit:
     The iterations start from a given ``start`` (a Lagrangian run passes the state it just
     solved, whose values on the previous stencils are ``values``: it is off by one step's
     change of ``Phi``) or else from ``LU0^{-1} values`` (off by the change since ``LU0``, and
-    one solve more).  ``refresh`` = 7 balances the two costs: on 60 steps of fsw_paper
-    (replayed, with rezonings) 6.2 solves a step and a factorisation every 7.5 steps, against
-    6.9 and one every 4 steps with the previous start and ``refresh`` = 6 (0.22 ms a solve,
-    2.5-5 ms a factorisation), each result within 3e-15 of the direct solve's (per field,
-    relative to max |x|).  Before: a SuperLU factorisation every step
-    (benchmarks/results/profile_host_step.md).
+    one solve more).  ``refresh`` = 7 balances the two costs, solves a step against
+    factorisations, each result within round-off of the direct solve's; the replayed runs that
+    chose it, and the factorisation every step it replaced, are in
+    benchmarks/results/profile_host_step.md.
 
     Pickles as the factorised matrix (the factors are remade from it on load, bit-identically,
     so a resumed run refits exactly as an uninterrupted one).
