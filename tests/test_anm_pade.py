@@ -27,7 +27,7 @@ def _run(make, solver, dt, t1=1.0):
 @pytest.mark.parametrize("make, dt, order, criterion", [
     (bratu_1d, 0.5, 10, "increment"),
     (bratu_1d, 0.5, 10, "state"),
-    (heat_1d, 0.05, 10, "increment"),
+    pytest.param(heat_1d, 0.05, 10, "increment", marks=pytest.mark.slow),  # the bratu cases check the same
 ], ids=["bratu-dt0.5-p10", "bratu-dt0.5-p10-state", "heat_1d-dt0.05-p10"])
 def test_large_steps_accepted_through_pade_solve_the_steps_with_fewer_factorisations(make, dt, order, criterion):
     """Large steps: series refused by eq. 26 are accepted through their approximant, the run needs

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from test_examples import load_example
 
 
@@ -81,6 +82,7 @@ def test_fsw_scene_example(tmp_path, capsys):
     assert all(p.stat().st_size > 10_000 for p in paths)
 
 
+@pytest.mark.slow  # each effect's rows are checked against the pointwise equations (test_fsw_validation)
 def test_effects_example(capsys):
     fx = load_example("effects")
     rows = fx.ladder(dr=1.125e-3, dt=1e-3, t_end=0.005, solver="newton", rungs=fx.LADDER[:6])

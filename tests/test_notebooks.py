@@ -51,11 +51,12 @@ def test_notebook_has_no_outputs(path):
     assert not dirty, f"{path.name}: code cells {dirty} carry outputs or execution counts; clear them before committing"
 
 
-SLOW_NOTEBOOKS = {"02_jet_vs_handcoded", "03_fsw_scene", "04_effects", "06_calibration", "07_continuation"}
+SLOW_NOTEBOOKS = {"02_jet_vs_handcoded", "03_fsw_scene", "04_effects", "05_accuracy_cost", "06_calibration",
+                  "07_continuation"}
 """Notebooks whose execution is a ``slow`` check (15 s to well over a minute each): what each
 shows is tested in the default suite on its own (test_jet_vs_hand, test_fsw_examples,
-test_calibration, test_continuation). The quickstart and the accuracy-cost notebook run by
-default."""
+test_core's and test_step_control's ANM against Newton, test_calibration, test_continuation).
+The quickstart runs by default."""
 
 
 @pytest.mark.parametrize("path", [pytest.param(p, id=p.stem,
