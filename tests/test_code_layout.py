@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import ast
+import io
+import tokenize
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxanm"
@@ -135,3 +137,33 @@ def test_the_command_line_is_a_leaf():
                  if path.name not in ("cli.py", "__main__.py") or path.parent != PACKAGE
                  if "jaxanm.cli" in _absolute_imports(path)]
     assert not offenders, "library modules importing jaxanm.cli: " + ", ".join(offenders)
+
+
+MAX_MODULE_CODE_LINES = 400
+
+
+def _code_lines(source: str) -> int:
+    """Lines of ``source`` that hold code: not blank, not only a comment, not in a docstring."""
+    tree = ast.parse(source)
+    docstrings = set()
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body:
+            first = body[0]
+            value = first.value if isinstance(first, ast.Expr) else None
+            if isinstance(value, ast.Constant) and isinstance(value.value, str):
+                docstrings.update(range(first.lineno, first.end_lineno + 1))
+    lines = set()
+    skip = (tokenize.COMMENT, tokenize.NL, tokenize.NEWLINE, tokenize.INDENT, tokenize.DEDENT, tokenize.ENDMARKER)
+    for tok in tokenize.generate_tokens(io.StringIO(source).readline):
+        if tok.type not in skip:
+            lines.update(n for n in range(tok.start[0], tok.end[0] + 1) if n not in docstrings)
+    return len(lines)
+
+
+def test_no_module_longer_than_400_lines_of_code():
+    """No module in jaxanm/ holds more than 400 lines of code (docstrings and comments aside): a
+    module holds one idea; a longer one is split by idea, as the solvers and the loop were."""
+    too_long = [f"{path.relative_to(PACKAGE.parent)} ({n} lines of code)" for path in sorted(PACKAGE.rglob("*.py"))
+                if (n := _code_lines(path.read_text())) > MAX_MODULE_CODE_LINES]
+    assert not too_long, "modules over 400 lines of code:\n" + "\n".join(too_long)
