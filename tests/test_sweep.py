@@ -45,10 +45,6 @@ tol = [1e-3, 1e-8]
 """
 TINY_IDS = ["newton-tol=0.001", "newton-tol=1e-08", "mnewton-tol=0.001", "mnewton-tol=1e-08"]
 
-# One worker runs this module (pytest -n 2 --dist loadgroup): its module-scoped run of a
-# sweep on a local Dask cluster is then made once, not once per worker.
-pytestmark = pytest.mark.xdist_group("sweep")
-
 
 def grid(data: dict, **kw):
     """``grid_from_dict`` with a shipped base scene unless ``data`` names one."""

@@ -45,10 +45,6 @@ rtol = 1e-6
 IE = ["dt=0.1-newton", "dt=0.05-newton"]
 IDA_TASK = "ida-rtol=1e-06"
 
-# One worker runs this module (pytest -n 2 --dist loadgroup): its module-scoped run of a
-# sweep on a local Dask cluster is then made once, not once per worker.
-pytestmark = pytest.mark.xdist_group("sweep_ida")
-
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
