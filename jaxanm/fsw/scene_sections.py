@@ -32,6 +32,7 @@ __all__ = [
     "Probe",
     "SOLVER_KINDS",
     "SOLVER_NAMES",
+    "SOLVER_OPTIONS",
     "STARTS",
     "SceneError",
     "Section",
@@ -444,9 +445,7 @@ class SolverSpec(_Section):
     def options(self) -> dict:
         """The fields the kind's solver takes, as its keyword arguments (``max_iter`` = 0 left out:
         the solver's default)."""
-        kind = {v: k for k, v in SOLVER_NAMES.items()}[self.kind]
-        taken = {f.name for f in dataclasses.fields(make_solver(kind))}
-        opts = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name in taken}
+        opts = {name: getattr(self, name) for name in SOLVER_OPTIONS[_REGISTERED_KIND[self.kind]]}
         if opts.get("max_iter") == 0:
             del opts["max_iter"]
         return opts
@@ -454,7 +453,17 @@ class SolverSpec(_Section):
     def make(self):
         """The :mod:`jaxanm` solver of this kind with these options (e.g. ``jaxanm.ANM``), built by
         :func:`jaxanm.make_solver`, which validates them."""
-        return make_solver({v: k for k, v in SOLVER_NAMES.items()}[self.kind], **self.options())
+        return make_solver(_REGISTERED_KIND[self.kind], **self.options())
+
+
+_REGISTERED_KIND = {scene_kind: kind for kind, scene_kind in SOLVER_NAMES.items()}
+"""``solver.kind`` of a scene -> the registered kind (:data:`SOLVER_NAMES` inverted)."""
+SOLVER_OPTIONS = {kind: tuple(f.name for f in dataclasses.fields(SolverSpec)
+                              if f.name in {g.name for g in dataclasses.fields(make_solver(kind))})
+                  for kind in SOLVER_NAMES}
+"""For each registered solver kind, the ``solver.*`` fields of a scene its solver takes (in the
+scene's order): what :meth:`SolverSpec.make` passes on, and the settings a sweep's ``[[solvers]]``
+entry may give for that kind."""
 
 
 @dataclasses.dataclass(frozen=True)

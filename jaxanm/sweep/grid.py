@@ -68,8 +68,7 @@ import re
 import tomllib
 from pathlib import Path
 
-from jaxanm import make_solver
-from jaxanm.fsw.scene import SOLVER_NAMES, Scene, SceneError, SolverSpec, load_scene, override_keys
+from jaxanm.fsw.scene import SOLVER_NAMES, SOLVER_OPTIONS, Scene, SceneError, load_scene, override_keys
 
 __all__ = ["IDA", "RICHARDSON", "SOLVER_KEYS", "Grid", "GridError", "Richardson", "Task", "grid_from_dict",
            "read_grid"]
@@ -77,19 +76,7 @@ __all__ = ["IDA", "RICHARDSON", "SOLVER_KEYS", "Grid", "GridError", "Richardson"
 IDA = "ida"
 """The grid kind of IDA tasks (no scene solver: :mod:`jaxanm.fsw.ida_scene`)."""
 
-
-def _solver_keys() -> dict[str, tuple[str, ...]]:
-    """For each registered solver kind, the ``solver.*`` scene fields its solver takes (in the
-    scene's order), from the solver's own fields; IDA's settings besides."""
-    fields = [f.name for f in dataclasses.fields(SolverSpec) if f.name != "kind"]
-    keys = {}
-    for kind in SOLVER_NAMES:
-        takes = {f.name for f in dataclasses.fields(make_solver(kind))}
-        keys[kind] = tuple(name for name in fields if name in takes)
-    return {**keys, IDA: ("rtol", "atol", "max_order")}
-
-
-SOLVER_KEYS = _solver_keys()
+SOLVER_KEYS = {**SOLVER_OPTIONS, IDA: ("rtol", "atol", "max_order")}
 """Solver settings that apply to each kind (``solver.*`` scene fields besides ``kind``, those the
 kind's solver takes; IDA's own)."""
 RICHARDSON = "richardson"
