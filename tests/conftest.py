@@ -42,3 +42,4 @@ def pytest_unconfigure(config):
     """Remove the run's compilation cache (in the process that made it)."""
     if getattr(config, "_jaxanm_cache_owner", False):
         shutil.rmtree(os.environ.pop(TEST_CACHE_ENV), ignore_errors=True)
+

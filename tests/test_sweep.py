@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from run_once import shared_once
 
 from jaxanm import cli
 from jaxanm.errors import InputError
@@ -276,15 +277,18 @@ def _any_run(tmp_path: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
-    """The 2 x 2 grid run once on a local cluster of 2 workers: (grid path, sweep dir, result)."""
-    root = tmp_path_factory.mktemp("sweep")
-    (root / "tiny_couette.toml").write_text((SCENES_DIR / "couette_small.toml").read_text()
-                                            .replace('"couette_small"', '"tiny"'))
-    path = root / "tiny.toml"
-    path.write_text(TINY_GRID)
-    out = root / "out"
-    result = run_sweep(read_grid(path), out, workers=2, progress=False, compile_cache=False)
-    return path, out, result
+    """The 2 x 2 grid run once per test run on a local cluster of 2 workers (shared by the xdist
+    workers, each with its own copy): (grid path, sweep dir, result)."""
+
+    def make(root):
+        (root / "tiny_couette.toml").write_text((SCENES_DIR / "couette_small.toml").read_text()
+                                                .replace('"couette_small"', '"tiny"'))
+        (root / "tiny.toml").write_text(TINY_GRID)
+        return run_sweep(read_grid(root / "tiny.toml"), root / "out", workers=2, progress=False,
+                         compile_cache=False)
+
+    root, result = shared_once(tmp_path_factory, "sweep", make)
+    return root / "tiny.toml", root / "out", result
 
 
 def test_sweep_writes_one_row_and_one_run_directory_per_task(sweep):

@@ -14,6 +14,7 @@ import json
 import math
 
 import pytest
+from run_once import shared_once
 
 from jaxanm.sweep import read_grid, run_sweep
 from jaxanm.sweep.pareto import cheapest
@@ -48,18 +49,22 @@ IDA_TASK = "ida-rtol=1e-06"
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
-    """The grid run once on one in-process worker: (grid, sweep dir, result)."""
-    from dask.distributed import LocalCluster
+    """The grid run once per test run on one in-process worker (shared by the xdist workers, each
+    with its own copy): (grid, sweep dir, result)."""
 
-    root = tmp_path_factory.mktemp("sweep_ida")
-    (root / "tiny_ida.toml").write_text(GRID)
-    grid = read_grid(root / "tiny_ida.toml")
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr("jaxanm.fsw.io.output.write_figures", lambda result, out_dir: [])
-        with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
-            result = run_sweep(grid, root / "out", scheduler=cluster.scheduler_address, progress=False,
-                               compile_cache=False)
-    return grid, root / "out", result
+    def make(root):
+        from dask.distributed import LocalCluster
+
+        (root / "tiny_ida.toml").write_text(GRID)
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr("jaxanm.fsw.io.output.write_figures", lambda result, out_dir: [])
+            with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                              dashboard_address=None) as cluster:
+                return run_sweep(read_grid(root / "tiny_ida.toml"), root / "out",
+                                 scheduler=cluster.scheduler_address, progress=False, compile_cache=False)
+
+    root, result = shared_once(tmp_path_factory, "sweep_ida", make)
+    return read_grid(root / "tiny_ida.toml"), root / "out", result
 
 
 def test_every_task_gets_finite_errors_at_the_common_times(sweep):
