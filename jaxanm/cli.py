@@ -393,13 +393,18 @@ def _accuracy_lines(paths) -> list[str]:
         return []
     block = json.loads(Path(summary).read_text(encoding="utf-8"))
     spatial = block.get("spatial_accuracy")
-    lines = (spatial_accuracy_lines(spatial) + time_error_lines(block.get("time_error"), spatial)
-             + probe_oscillation_lines(block.get("probe_oscillation")))
-    if (spatial or {}).get("shear_band_points", 1.0) < 1.0:
-        lines.append("why so large: this cloud puts under one point across the tool-edge shear band, where the "
-                     "heat is made, so its temperatures are those of a coarse demonstration scene; the main job "
-                     "(jaxanm run fsw) resolves the band: docs/physics/accuracy.md")
-    return lines
+    return (spatial_accuracy_lines(spatial) + time_error_lines(block.get("time_error"), spatial)
+            + probe_oscillation_lines(block.get("probe_oscillation")) + coarse_cloud_lines(spatial))
+
+
+def coarse_cloud_lines(spatial: dict | None) -> list[str]:
+    """Why a run's temperature error is large, when its cloud puts under one point across the
+    tool-edge shear band (``summary.json``'s ``spatial_accuracy``); none otherwise."""
+    if (spatial or {}).get("shear_band_points", 1.0) >= 1.0:
+        return []
+    return ["why so large: this cloud puts under one point across the tool-edge shear band, where the heat "
+            "is made, so its temperatures are those of a coarse demonstration scene; the main job "
+            "(jaxanm run fsw) resolves the band: docs/physics/accuracy.md"]
 
 
 def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> str:
