@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -95,6 +96,11 @@ def test_run_writes_outputs_and_prints_summary(tiny, tmp_path, fake_run, capsys)
     assert Scene.from_dict(summary["scene"]) == fake_run["scene"]  # the scene round-trips
     assert (out / "fields.npz").exists() and (out / "fields.pvd").exists()
     assert fake_run["callback"] is None
+    # the CLI guide's table of output files names every file and folder a run writes
+    guide = (Path(cli.__file__).resolve().parents[1] / "docs" / "guide" / "cli.md").read_text(encoding="utf-8")
+    table = guide[guide.index("### Output files"):guide.index("### Exit status")]
+    written = {re.sub(r"^fig\d\d_.*", "fig", p.name) for p in out.iterdir() if not p.name.startswith(".")}
+    assert written and not [name for name in written if f"`{name}" not in table and f"`{name}/" not in table]
 
 
 def test_shorthands_and_set_overrides_reach_the_scene(tiny, tmp_path, fake_run, no_files):
