@@ -368,14 +368,15 @@ TROUBLESHOOTING = "docs/guide/troubleshooting.md"
 
 def what_to_try(scene, exc: StepFailure | SingularMatrixError) -> str:
     """What to change when ``scene``'s run failed with ``exc``, as the end of the error line:
-    the options that apply to its solver and start, the cheapest first."""
+    the options that apply to its solver, effects and start, the cheapest first."""
     kind, tries = scene.solver.kind, []
     if kind == "anm":
-        tries.append(f"more continuation sub-steps per step (--set solver.max_substeps="
-                     f"{4 * scene.solver.max_substeps}; the ANM's a_max shows how far each got)")
+        more = max(200, 4 * scene.solver.max_substeps)
+        tries.append(f"more continuation sub-steps (--set solver.max_substeps={more})")
     else:
-        tries.append(f"more iterations per step (--set solver.max_iter={2 * scene.solver.make().max_iter})")
-    tries.append(f"a smaller time step (--set time.dt={scene.time.dt / 10:g})")
+        tries.append(f"more iterations (--set solver.max_iter={2 * scene.solver.make().max_iter})")
+    if {"inertia", "conduction", "lagrangian", "tracers"} & set(scene.effects):  # else dt changes no step
+        tries.append(f"a smaller time step than the run's own halvings reached (--set time.dt={scene.time.dt / 100:g})")
     tries.append("another solver (" + ", ".join(f"--solver {name}" for name, k in SOLVER_NAMES.items()
                                                 if k != kind) + ")")
     if "viscous" in scene.effects and scene.mechanics.start == "rest" and getattr(exc, "step", 1) <= 1:
