@@ -49,7 +49,9 @@ class StepFailure(RuntimeError):
 
     ``amax`` is ``None`` (printed ``n/a``) for Newton solvers, and ``residual_norm`` is ``None``
     when no residual was evaluated at the failing state; a non-finite norm is printed as
-    ``nan`` or ``inf``.
+    ``nan`` or ``inf``.  What to change when a step fails (more ANM sub-steps, a smaller step,
+    another solver, a better start): docs/guide/troubleshooting.md; the ``jaxanm`` command ends
+    its error line with the options that apply to the failed scene.
     """
 
     # set by a step solver on a failure inside its step: the state to retry from (absent
