@@ -1,5 +1,6 @@
-"""The public entry of the time loop: :func:`integrate` (implicit Euler steps of a user
-residual with a step solver: ANM, Newton, ...) and its :class:`Solution`.
+"""The public entry of the time loop: :func:`integrate` (the steps of a time scheme, implicit
+Euler by default, each stage solved by a step solver: ANM, Newton, ...) and its
+:class:`Solution`.
 
 It is the only time loop (:mod:`jaxanm._loop`): fixed and adaptive steps are two controllers
 of it, and forward sensitivities ride on it (its ``sensitivity`` option)."""
@@ -16,8 +17,9 @@ from ._constant_step import ConstantStepSize
 from ._hooks import Remap, no_callback, same_params
 from ._loop import LoopOptions, TimeLoop
 from ._run_checkpoint import Checkpoints
-from ._run_inputs import check_run_inputs, check_run_options, on_device, params_float64, tangent_pattern
+from ._run_inputs import check_run_inputs, check_run_options, check_scheme, on_device, params_float64, tangent_pattern
 from ._saveat import SaveAt
+from ._scheme import SemiDiscrete, TimeScheme
 from ._sensitivity_method import NoSensitivity, SensitivityMethod
 from ._step_size import Span, StepSizeController
 from ._x64 import entry_point
@@ -35,10 +37,11 @@ class Solution:
     by ``SaveAt(fn=...)`` at every step (``{"t": (M,), key: (M, ...)}``), else ``None``.
     ``time_error``: with a :class:`~jaxanm.StepController`, an estimate of the time
     discretisation's error at t1 in the quantities it measures (its ``error_map``): the sum of
-    the local error estimates of the accepted steps (Milne's device).  It leaves out how
+    the local error estimates of the accepted steps (the scheme's estimate).  It leaves out how
     earlier errors propagate: where they decay (diffusion) and the local errors keep their
     sign, it errs on the large side.  The first step, and the first after a
-    ``Remap(history=False)``, have no estimate and add nothing.  None with fixed steps.
+    ``Remap(history=False)``, have no estimate and add nothing (and so do the first two of
+    BDF2).  None with fixed steps.
     """
 
     ts: np.ndarray
@@ -50,14 +53,15 @@ class Solution:
 
 
 @entry_point
-def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: float, solver,
+def integrate(residual: Callable | SemiDiscrete, x0, params=None, *, t0: float, t1: float, dt: float, solver,
               scale=None, jacobian: str = "auto", sparsity=None, saveat: SaveAt | None = None,
               after_step: Callable | None = None, progress: bool = False, callback: Callable | None = None,
               max_dt_halvings: int = 4, checkpoint=None, checkpoint_every: int = 0,
               resume: bool = False, host_state: tuple | None = None,
               controller: StepSizeController | None = None,
-              sensitivity: SensitivityMethod | None = None) -> Solution:
-    """Integrate ``R(x_new, x_old, t_new, dt, params) = 0`` by implicit Euler steps from t0 to t1.
+              sensitivity: SensitivityMethod | None = None, scheme: TimeScheme | None = None) -> Solution:
+    """Integrate ``R(x_new, x_old, t_new, dt, params) = 0`` by implicit Euler steps from t0 to t1,
+    or ``F(u, u_dot, t, params) = 0`` by the steps of a time ``scheme``.
 
     Returns a :class:`Solution`.  Raises :class:`InputError` on invalid arguments, before any
     computation; :class:`StepFailure` or :class:`NonFiniteError` when a step failed even after
@@ -67,8 +71,10 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
 
     Parameters
     ----------
-    residual : callable
-        ``residual(x_new, x_old, t_new, dt, params) -> (n,)`` in ``jax.numpy``, jet-compatible.
+    residual : callable or SemiDiscrete
+        ``residual(x_new, x_old, t_new, dt, params) -> (n,)`` in ``jax.numpy``, jet-compatible:
+        the residual of one implicit-Euler step; or the semi-discrete ``F(u, u_dot, t, params)``
+        as a :class:`~jaxanm.SemiDiscrete`, which every scheme can use.
     x0 : array (n,)
         Initial state.
     params : pytree of arrays
@@ -117,29 +123,37 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
         Derivatives carried along the steps (:func:`jaxanm.sensitivities` passes a
         :class:`~jaxanm.sensitivity.ForwardSensitivity`): it gets every solved (sub-)step, may
         polish the state the run goes on from, and every accepted step.  Not with
-        ``after_step``, a ``StepController`` or checkpoints.
+        ``after_step``, a ``StepController``, checkpoints or another scheme than implicit Euler.
+    scheme : TimeScheme, optional
+        The time scheme (:class:`~jaxanm.ImplicitEuler`, the default; :class:`~jaxanm.BDF2`;
+        :class:`~jaxanm.ESDIRK`): it builds each step from implicit-Euler-shaped stage
+        equations ``F(x, (x - z) / (gamma h), t) = 0``, which ``solver`` solves, and gives the
+        ``StepController`` its error estimate and order.  Every scheme but implicit Euler needs
+        a :class:`~jaxanm.SemiDiscrete` residual.  A :class:`Remap` restarts a scheme that
+        carries a history (BDF2's previous state, an ESDIRK's derivative).
     """
     saveat = SaveAt() if saveat is None else saveat
     x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, saveat, controller)
     check_run_options(checkpoint, checkpoint_every, resume, host_state, after_step, controller, sensitivity)
+    residual, scheme = check_scheme(residual, scheme, sensitivity)
     params = on_device(params_float64(params))
     start = time.perf_counter()
     jacobian, sparsity = tangent_pattern(residual, x0, t0, dt, params, jacobian, sparsity)
-    options = _options(x0, solver, saveat, controller, sensitivity, t0=t0, t1=t1, dt=dt, after_step=after_step,
+    options = _options(x0, solver, saveat, controller, sensitivity, scheme, t0=t0, t1=t1, dt=dt, after_step=after_step,
                        callback=callback, progress=progress, max_dt_halvings=max_dt_halvings, checkpoint=checkpoint,
                        checkpoint_every=checkpoint_every, resume=resume, host_state=host_state)
     state, stats = TimeLoop(residual, solver, x0, params, scale, jacobian, sparsity, saveat, options, start).run()
     return _solution(state, stats, options.controller)
 
 
-def _options(x0, solver, saveat, controller, sensitivity, *, t0, t1, dt, after_step, callback, progress,
+def _options(x0, solver, saveat, controller, sensitivity, scheme, *, t0, t1, dt, after_step, callback, progress,
              max_dt_halvings, checkpoint, checkpoint_every, resume, host_state) -> LoopOptions:
     """The loop's options (:func:`integrate`'s), with the do-nothing defaults in place of None."""
     controller = ConstantStepSize() if controller is None else controller
     fingerprint = {"n": x0.size, "t0": float(t0), "t1": float(t1), "dt": float(dt), "solver": repr(solver),
-                   "controller": controller.describe()}
+                   "controller": controller.describe(), "scheme": repr(scheme)}
     return LoopOptions(
-        span=Span(t0, t1, dt, saveat, max_dt_halvings), controller=controller,
+        span=Span(t0, t1, dt, saveat, max_dt_halvings, scheme), controller=controller,
         after_step=same_params if after_step is None else after_step,
         callback=no_callback if callback is None else callback, progress=progress,
         checkpoints=Checkpoints(checkpoint, checkpoint_every, resume, host_state, fingerprint),

@@ -15,6 +15,7 @@ import dataclasses
 import math
 import re
 
+from .._scheme import scheme_names
 from .._solver import make_solver, solver_kinds
 from ..errors import InputError
 
@@ -360,7 +361,12 @@ class Mechanics(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class Time(_Section):
-    """Implicit Euler step ``dt``, end time ``t_end`` (s) and the times at which fields are saved.
+    """Time ``scheme``, step ``dt``, end time ``t_end`` (s) and the times at which fields are saved.
+
+    ``scheme``: ``"euler"`` (implicit Euler, the paper's), ``"bdf2"``, ``"esdirk3"`` or
+    ``"esdirk4"`` (:func:`jaxanm.make_scheme`); the stages of the last three are built from the
+    scene's residual in semi-discrete form, so they need fixed points (no ``lagrangian``
+    effect, :func:`jaxanm.fsw.simulate.run` refuses it).
 
     Save times after ``t_end`` are ignored (so a shortened run keeps the scene's list);
     t = 0 and t = t_end are always saved.  ``adaptive = true``: step sizes from a local error
@@ -372,6 +378,7 @@ class Time(_Section):
     """
 
     _name = "time"
+    scheme: str = "euler"
     dt: float = 1e-4
     t_end: float = 0.7
     save: tuple[float, ...] = ()
@@ -380,6 +387,9 @@ class Time(_Section):
     atol: float = 1e-5
 
     def _validate(self):
+        _check("time.scheme", self.scheme, self.scheme in scheme_names(),
+               f"must be one of {', '.join(scheme_names())} (implicit Euler, BDF2, Kværnø's ESDIRKs of order 3 "
+               "and 4)")
         self._positive("dt", "t_end")
         for name in ("rtol", "atol"):
             value = getattr(self, name)

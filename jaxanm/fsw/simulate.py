@@ -4,9 +4,15 @@
 :func:`run` discretises the scene (:func:`~jaxanm.fsw.discretisation.discretise`: cloud, MLS
 stencils, :class:`~jaxanm.fsw.discretisation.Model`), optionally solves the quasi-static start
 flow (:mod:`jaxanm.fsw.start`: by damped Newton or by continuation), and calls :func:`jaxanm.integrate` with the scene's
-:class:`jaxanm.SaveAt`, its step controller and the host hook of :mod:`jaxanm.fsw.lagrangian`
-(records, Lagrangian motion, rezoning) after every accepted step; the hook's state is
-checkpointed with the run.
+:class:`jaxanm.SaveAt`, its step controller, its time scheme and the host hook of
+:mod:`jaxanm.fsw.lagrangian` (records, Lagrangian motion, rezoning) after every accepted step;
+the hook's state is checkpointed with the run.
+
+A scheme other than implicit Euler builds its stages from the model's residual in
+semi-discrete form: on fixed points the FSW step residual depends on the old state only
+through the difference quotients of its MLS values (``dT/dt`` and, with inertia, ``dV/dt``),
+so it is its own stage residual (:class:`jaxanm.SemiDiscrete`, ``step_residual``; the claim
+is checked on the FSW rows in ``tests/test_ida.py``).
 """
 
 from __future__ import annotations
@@ -20,14 +26,34 @@ import jaxanm
 from .discretisation import Model, discretise
 from .lagrangian import RunRecorder, motion_dt_max
 from .record import FSWResult
-from .scene import Scene
+from .scene import Scene, SceneError
 from .stability import TemperatureGuard
 from .start import continuation_state, quasi_static_state
 
 _STARTS = {"quasi_static": quasi_static_state, "continuation": continuation_state}
 """The solvers of the start flow per ``mechanics.start`` ("rest" solves none)."""
 
-__all__ = ["run", "scene_differences", "step_controller"]
+__all__ = ["run", "scene_differences", "step_controller", "time_scheme"]
+
+
+def time_scheme(scene: Scene):
+    """The scene's :class:`jaxanm.TimeScheme` (``time.scheme``).
+
+    Raises :class:`jaxanm.fsw.scene.SceneError` for a scheme other than implicit Euler on a
+    Lagrangian scene: after every step the points move and the state is refitted on the new
+    stencils, so the old state a step starts from is another discretisation's, and the
+    residual is no semi-discrete one; a multistep or Runge-Kutta scheme would restart at every
+    step (its previous states and derivatives are those of the old cloud).
+    """
+    name = scene.time.scheme
+    scheme = jaxanm.make_scheme(name)
+    if not scheme.one_step and scene.has("lagrangian"):
+        raise SceneError(f"scene field 'time.scheme' = {name!r} is invalid with the 'lagrangian' effect: the points "
+                         "move after every step and the state is refitted on the rebuilt stencils, so the state a "
+                         "step starts from belongs to another discretisation and the residual has no semi-discrete "
+                         "form; a multistep or Runge-Kutta scheme would restart at every step.  Use "
+                         "time.scheme = 'euler', or fixed points ('tracers' instead of 'lagrangian')")
+    return scheme
 
 
 def step_controller(scene: Scene, model: Model):
@@ -127,7 +153,10 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         (also on :class:`jaxanm.StepFailure`).
     """
     solver = scene.solver.make() if solver is None else solver
+    scheme = time_scheme(scene)
     _, stencils, model, params, x0 = discretise(scene)
+    # the FSW step residual on fixed points is its own stage residual (module docstring)
+    residual = model.residual if scheme.one_step else jaxanm.SemiDiscrete(step_residual=model.residual)
     initial, start = None, None
     resuming = resume and checkpoint is not None and os.path.exists(checkpoint)
     if scene.mechanics.start in _STARTS and not resuming:  # a resumed run's state is in its checkpoint
@@ -153,7 +182,7 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     if checkpoint is not None:
         host = _host_state(scene, recorder, {"checkpoint_every": int(checkpoint_every)})
     try:
-        sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver,
+        sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver, scheme=scheme,
                                scale=model.scale(), jacobian="sparse", sparsity=model.sparsity,
                                saveat=saveat, after_step=recorder.after_step,
                                progress=progress, callback=step_done, checkpoint=checkpoint,
