@@ -85,7 +85,8 @@ class StepController(StepSizeController):
     are described in ``docs/notes/adaptive_time_steps.md`` (and this module's docstring).  A step whose solve
     fails is retried from its start at a quarter of its size, at most ``max_dt_halvings``
     times in a row; a step refused by the error test is retried at the size the controller
-    proposes.  Steps end exactly on ``SaveAt.ts`` and on ``t1``.
+    proposes.  Steps end exactly on ``SaveAt.ts`` and on ``t1``, the distance to each shared
+    equally by the steps before it.
 
     Parameters
     ----------
@@ -198,13 +199,17 @@ class StepController(StepSizeController):
         return self._planned(state, h, t, span, 0, y_now)
 
     def _planned(self, state: _Adaptive, h: float, t: float, span: Span, failures: int, y_now) -> Attempt:
-        """A step of about ``h`` from ``t``: it ends exactly on the next save time or on t1 when
-        it reaches it (or falls short of it by a sliver the next step could not resolve)."""
-        end = t + h
-        for target in [v for v in state.save_times if v > t][:1] + [float(span.t1)]:
-            if end >= target - MIN_STEP * (span.t1 - span.t0):
-                end = target
-                break
+        """A step of at most ``h`` from ``t`` towards the next save time (or t1): the remaining
+        distance in equal steps, ``ceil(distance / h)`` of them, so that the steps end exactly
+        on it without a short last step (whose stage size would need another K*, and after
+        which the next proposal would start from the short size); a step that reaches it, or
+        falls short of it by a sliver the next step could not resolve, ends on it."""
+        target = min([v for v in state.save_times if v > t][:1] + [float(span.t1)])
+        distance = target - t
+        if distance <= h + MIN_STEP * (span.t1 - span.t0):
+            end = target
+        else:
+            end = t + distance / math.ceil(distance / h)
         return Attempt(end, (Segment(t, end - t),), failures, (h, y_now))
 
     def retry(self, state: _Adaptive, attempt: Attempt, failure: Exception, span: Span) -> Attempt:

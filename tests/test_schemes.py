@@ -9,8 +9,9 @@ What is checked, and against what nobody here tuned:
 - the observed order of convergence under step refinement (the fitted slope of log error
   against log h) on three problems with closed-form solutions: the linear test equation, a
   nonlinear time-dependent scalar ODE (u' = -2 t u^2, u = 1 / (1 + t^2)) and a small heat
-  equation whose semi-discrete solution is one mode (exp(lambda_1 t) sin(pi x), lambda_1 the
-  discrete Laplacian's eigenvalue, so only the time error is measured);
+  equation written as a DAE (its Dirichlet values and a w = sin t as algebraic rows) whose
+  semi-discrete solution is one mode (exp(lambda_1 t) sin(pi x), lambda_1 the discrete
+  Laplacian's eigenvalue, so only the time error is measured);
 - L-stability in use: a stiff Prothero-Robinson problem from a perturbed start;
 - the ANM, Newton and modified Newton solving every scheme's stages to the same states;
 - the step controller reaching its tolerance with each scheme's own estimate, the number of
@@ -91,26 +92,28 @@ def _riccati(u, u_dot, t, p):
 N_HEAT = 15
 
 
-def _heat(u, u_dot, t, p):
-    padded = jnp_pad(u)
-    return u_dot - (padded[2:] - 2 * u + padded[:-2]) * (N_HEAT + 1) ** 2
-
-
-def jnp_pad(u):
+def _heat(x, x_dot, t, p):
+    """Unknowns [u_0 .. u_{N+1}, w]: u_0 = u_{N+1} = 0 and w = sin t algebraic, the interior
+    u' = u_xx by central differences."""
     import jax.numpy as jnp
 
-    return jnp.concatenate([jnp.zeros(1), u, jnp.zeros(1)])
+    u = x[:-1]
+    interior = x_dot[1:-2] - (u[2:] - 2 * u[1:-1] + u[:-2]) * (N_HEAT + 1) ** 2
+    return jnp.concatenate([u[:1], interior, u[-1:], x[-1:] - jnp.sin(t)])
 
 
-X_HEAT = np.arange(1, N_HEAT + 1) / (N_HEAT + 1)
+X_HEAT = np.arange(N_HEAT + 2) / (N_HEAT + 1)
 LAMBDA_1 = -4 * (N_HEAT + 1) ** 2 * math.sin(math.pi / (2 * (N_HEAT + 1))) ** 2  # the discrete Laplacian's
+
+
+def _heat_exact(t):
+    return np.concatenate([math.exp(LAMBDA_1 * t) * np.sin(math.pi * X_HEAT), [math.sin(t)]])
 
 PROBLEMS = {
     # name: (F, u0, t1, exact solution at t1)
     "decay": (jaxanm.SemiDiscrete(_decay), np.ones(1), 1.0, np.array([math.exp(-1.0)])),
     "riccati": (jaxanm.SemiDiscrete(_riccati), np.ones(1), 2.0, np.array([1 / 5])),
-    "heat": (jaxanm.SemiDiscrete(_heat), np.sin(math.pi * X_HEAT), 0.05,
-             math.exp(LAMBDA_1 * 0.05) * np.sin(math.pi * X_HEAT)),
+    "heat": (jaxanm.SemiDiscrete(_heat), _heat_exact(0.0), 0.05, _heat_exact(0.05)),
 }
 
 
