@@ -212,16 +212,16 @@ class TimeLoop:
         sensitivity method polishes, and measures, the state itself)."""
         norms: list = []
 
-        def solve(z, t, gamma_h, last=False):
-            x_stage, r_norm = self._solve_stage(z, t, gamma_h, k, last)
+        def solve(z, t, gamma_h, last=False, start=None):
+            x_stage, r_norm = self._solve_stage(z, t, gamma_h, k, last, start)
             norms.append(r_norm)
             return x_stage
 
         step = self.scheme.step(history, x, segment.t, segment.h, solve)
         return step, norms[-1]
 
-    def _solve_stage(self, z, t, gamma_h, k: int, last: bool):
-        """One solve of step ``k``: the stage ``R(x, z, t, gamma_h) = 0`` from ``z``:
+    def _solve_stage(self, z, t, gamma_h, k: int, last: bool, start=None):
+        """One solve of step ``k``: the stage ``R(x, z, t, gamma_h) = 0`` from ``start`` (or ``z``):
         ``(x, |R(x)|_inf)`` for the step's last stage (None when the sensitivity method
         polishes, and measures, the state itself), ``(x, None)`` for the others.
 
@@ -241,8 +241,9 @@ class TimeLoop:
                 kstar = None
         # numpy scalars: a jnp scalar costs a device dispatch per conversion
         t_new, h_new = np.float64(t), np.float64(gamma_h)
-        try:
-            x_new, state = solver.step(state, k, z, t_new, h_new, self.state.params)
+        try:  # a start only when the scheme gives one: a user's solver written without it serves Euler
+            extra = {} if start is None else {"start": start}
+            x_new, state = solver.step(state, k, z, t_new, h_new, self.state.params, **extra)
         except StepFailure as failure:
             state = solver.state_after_failure(state, failure)
             raise

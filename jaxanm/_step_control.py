@@ -63,6 +63,10 @@ REFACTOR_RATIO = 1.5
 """Default :attr:`StepController.refactor_ratio` (module docstring, "Holding the step size")."""
 
 
+SPREAD = 4
+"""Within this many steps of a save time (or t1) the steps before it share the distance equally
+(the first of them at least 3/4 of the proposal)."""
+
 MIN_STEP = 1e-12
 """A step refused by the error test below this fraction of the span is a failure (the error
 estimate is then round-off or a discontinuity, not the time discretisation)."""
@@ -199,17 +203,21 @@ class StepController(StepSizeController):
         return self._planned(state, h, t, span, 0, y_now)
 
     def _planned(self, state: _Adaptive, h: float, t: float, span: Span, failures: int, y_now) -> Attempt:
-        """A step of at most ``h`` from ``t`` towards the next save time (or t1): the remaining
-        distance in equal steps, ``ceil(distance / h)`` of them, so that the steps end exactly
-        on it without a short last step (whose stage size would need another K*, and after
-        which the next proposal would start from the short size); a step that reaches it, or
-        falls short of it by a sliver the next step could not resolve, ends on it."""
+        """A step of at most ``h`` from ``t`` towards the next save time (or t1): within
+        :data:`SPREAD` steps of it, the remaining distance in equal steps, ``ceil(distance / h)``
+        of them, so that the steps end exactly on it without a short last step (whose stage
+        size would need another K*, and after which the next proposal would start from the
+        short size); a step that reaches it, or falls short of it by a sliver the next step
+        could not resolve, ends on it."""
         target = min([v for v in state.save_times if v > t][:1] + [float(span.t1)])
         distance = target - t
+        steps = math.ceil(distance / h)
         if distance <= h + MIN_STEP * (span.t1 - span.t0):
             end = target
+        elif steps <= SPREAD:
+            end = t + distance / steps
         else:
-            end = t + distance / math.ceil(distance / h)
+            end = t + h
         return Attempt(end, (Segment(t, end - t),), failures, (h, y_now))
 
     def retry(self, state: _Adaptive, attempt: Attempt, failure: Exception, span: Span) -> Attempt:

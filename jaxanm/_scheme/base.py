@@ -25,12 +25,14 @@ from ..errors import InputError
 
 class StageSolve(Protocol):
     """What the time loop gives :meth:`TimeScheme.step` to solve one stage: the ``x`` with
-    ``R(x, z, t, gamma_h, params) = 0``, solved from ``z`` by the run's step solver.
-    ``last`` marks the stage whose solution ends the step (its residual is checked and
-    recorded as the step's).  A stage that cannot be solved raises
-    :class:`~jaxanm.StepFailure`: the whole step is retried as the controller says."""
+    ``R(x, z, t, gamma_h, params) = 0``, solved by the run's step solver from ``start`` (the
+    scheme's predictor of the stage; default ``z``).  ``last`` marks the stage whose solution
+    ends the step (its residual is checked and recorded as the step's).  A stage that cannot
+    be solved raises :class:`~jaxanm.StepFailure`: the whole step is retried as the
+    controller says."""
 
-    def __call__(self, z: np.ndarray, t: float, gamma_h: float, last: bool = False) -> np.ndarray:
+    def __call__(self, z: np.ndarray, t: float, gamma_h: float, last: bool = False,
+                 start: np.ndarray | None = None) -> np.ndarray:
         ...
 
 

@@ -74,7 +74,8 @@ class BDF2(TimeScheme):
             return SchemeStep(solve(x, t + h, h, last=True), (x, h))
         x_prev, h_prev = history
         z, gamma_h = bdf2_stage(x, x_prev, h, h_prev)
-        return SchemeStep(solve(z, t + h, gamma_h, last=True), (x, h))
+        start = x + (h / h_prev) * (x - x_prev)  # the line through the last two states: O(h^2) off
+        return SchemeStep(solve(z, t + h, gamma_h, last=True, start=start), (x, h))
 
     def local_error(self, y_new, y_embedded, y_now, past, h):
         """The predictor's estimate (None without two earlier steps)."""

@@ -10,7 +10,9 @@ so each stage is one implicit-Euler-shaped equation ``F(Y_i, (Y_i - z_i) / (gamm
 and one K* (made at ``gamma h``) serves every stage of every step of that size.  The schemes
 are stiffly accurate (the last stage is the solution, at ``c_s = 1``): the last stage's slope
 satisfies ``F = 0`` at the new state, and is the next step's first slope (first same as last),
-so no derivative is ever computed apart from a stage.
+so no derivative is ever computed apart from a stage.  Each stage is solved from
+``z_i + gamma h Y'_{i-1}`` (the previous stage's slope for its own: ``z_i`` alone is
+``gamma h Y'_i`` away), as diffrax predicts its stages.
 
 **Estimate.**  Kværnø's embedded solution is the stage before the last (also at ``c = 1``),
 one order lower; the local error estimate is the difference of the two solutions,
@@ -121,7 +123,9 @@ def dirk_step(tableau: Tableau, x, t: float, h: float, slope, solve):
             slopes.append(slope)
             continue
         z = x + h * sum(a[i, j] * slopes[j] for j in range(i)) if i else x
-        y = solve(z, t + c[i] * h, gamma_h, last=i == s - 1)
+        # solved from the stage with the previous stage's slope (z itself lacks gamma h Y'_i)
+        start = z + gamma_h * slopes[-1] if slopes else None
+        y = solve(z, t + c[i] * h, gamma_h, last=i == s - 1, start=start)
         slopes.append((y - z) / gamma_h)
     embedded = None
     if tableau.b_hat is not None:

@@ -26,11 +26,12 @@ class _ANMStep(Attempt):
 
     opts: "ANM"
 
-    def run(self, step: int, x_old, t, dt, params):
-        """The accepted state and the residual there (None when not evaluated): ``(x, R(x))``."""
+    def run(self, step: int, x_old, t, dt, params, start=None):
+        """The accepted state and the residual there (None when not evaluated): ``(x, R(x))``;
+        the homotopy starts at ``start`` (default ``x_old``)."""
         P, p, st = self.problem, self.opts.order, self.problem.stats
         args = (x_old, t, dt, params)
-        d_s = np.array(x_old, dtype=np.float64)
+        d_s = np.array(x_old if start is None else start, dtype=np.float64)
         fresh = False
         substeps = 0
         amax = None  # of the previous series in this step (reported if a later one fails)
