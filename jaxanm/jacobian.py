@@ -21,6 +21,7 @@ that moves makes ``A S`` anew at each tangent, at about the plain ``jvp``'s cost
 from __future__ import annotations
 
 import functools
+import os
 
 import jax
 import jax.numpy as jnp
@@ -29,7 +30,9 @@ import scipy.sparse
 from jax.extend import core as jex_core
 
 from ._affine import split_affine
+from ._jaxpr_sparsity import jacobian_pattern
 from ._x64 import entry_point
+from .errors import InputError
 
 _COLOR_BUCKET = 16  # colours are padded to a multiple of this: fewer recompiles
 # Device memory one seeded jvp of a meshless residual holds, per nonzero of the Jacobian: its
@@ -41,6 +44,9 @@ _BYTES_PER_NONZERO_AND_COLOR = 16
 # fsw_paper Jacobian (144 padded colours, 0.2e6 nonzeros: 0.5 GB) stays one vmap, a cloud 4x
 # finer per direction no longer needs 6.6 GB.
 JACOBIAN_MEMORY_BYTES = 512 * 2**20
+DENSE_BYTES_PER_ENTRY = 32
+"""Bytes per entry of a dense (n, n) Jacobian while ``jacfwd`` makes it: the seeds, the
+Jacobian and the residual's intermediates per seed, each n x n float64."""
 
 
 def color_columns(pattern) -> np.ndarray:
@@ -48,21 +54,41 @@ def color_columns(pattern) -> np.ndarray:
 
     Two columns get different colours whenever they have a nonzero in a common row, so
     ``J @ seed(colour)`` holds each nonzero of ``J`` once.  Columns are visited by
-    decreasing degree (largest-first greedy) on the column-intersection graph ``P^T P``.
-    Returns ``colors`` of shape ``(n,)``.
+    decreasing degree (largest-first greedy) on the column-intersection graph ``P^T P``, each
+    taking the smallest colour its coloured neighbours do not have; the visit is one compiled
+    loop (:func:`_greedy_colors`), linear in the graph's size.  Returns ``colors`` of shape ``(n,)``.
     """
     csc = scipy.sparse.csc_matrix(pattern, dtype=bool)
     n = csc.shape[1]
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
     structure = scipy.sparse.csc_matrix((np.ones(csc.nnz), csc.indices, csc.indptr), shape=csc.shape)
     graph = (structure.T @ structure).tocsr()  # columns sharing a row are neighbours
-    degree = np.diff(csc.indptr)
-    colors = np.full(n, -1, dtype=np.int64)
-    stamp = np.full(n + 1, -1, dtype=np.int64)  # stamp[c] == j: colour c is taken near column j
-    for j in np.argsort(-degree, kind="stable"):
-        used = colors[graph.indices[graph.indptr[j] : graph.indptr[j + 1]]]
-        stamp[used[used >= 0]] = j
-        colors[j] = int(np.argmax(stamp != j))  # smallest colour not taken
-    return colors
+    order = np.argsort(-np.diff(csc.indptr), kind="stable").astype(np.int32)
+    return np.asarray(_greedy_colors(graph.indptr.astype(np.int32), graph.indices.astype(np.int32), order),
+                      dtype=np.int64)
+
+
+@jax.jit
+def _greedy_colors(indptr, indices, order):
+    """Sequential greedy colouring of a graph (CSR) in ``order``: each vertex stamps its
+    neighbours' colours with its turn, then takes the first colour not stamped."""
+    n = order.shape[0]
+
+    def vertex(turn, state):
+        colors, stamp = state
+        j = order[turn]
+
+        def mark(e, stamp):
+            c = colors[indices[e]]
+            return stamp.at[jnp.where(c >= 0, c, n)].set(turn)  # uncoloured: the spare slot n
+
+        stamp = jax.lax.fori_loop(indptr[j], indptr[j + 1], mark, stamp)
+        first_free = jax.lax.while_loop(lambda c: stamp[c] == turn, lambda c: c + 1, 0)
+        return colors.at[j].set(first_free), stamp
+
+    start = (jnp.full(n, -1, dtype=indices.dtype), jnp.full(n + 1, -1, dtype=indices.dtype))
+    return jax.lax.fori_loop(0, n, vertex, start)[0]
 
 
 def _step_function(residual, x_old, t, dt, params):
@@ -257,15 +283,39 @@ def _tangent_inputs(linear, x, args) -> list:
     return [v in needed for v in jaxpr.invars[1:]]
 
 
-@entry_point
-def detect_sparsity(residual, x, x_old, t, dt, params, probes: int = 3, seed: int = 0):
-    """Sparsity pattern of ``dR/dx_new`` from dense Jacobians at randomly perturbed points.
+def dense_jacobian_fits(n: int, argument: str, fix: str) -> None:
+    """Refuse, with an :class:`~jaxanm.InputError` naming ``argument`` and ``fix``, a dense
+    (n, n) Jacobian that would not fit in this machine's memory: ``jacfwd`` holds its seeds,
+    the Jacobian and intermediates of that size (:data:`DENSE_BYTES_PER_ENTRY` per entry)."""
+    need = DENSE_BYTES_PER_ENTRY * float(n) ** 2
+    have = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    if need > have:
+        raise InputError(f"{argument} forms dense {n} x {n} Jacobians, about {need / 2**30:.3g} GiB with their "
+                         f"intermediates, more than this machine's {have / 2**30:.3g} GiB of memory; {fix}")
 
-    For small and moderate problems only (it forms ``probes`` dense n x n Jacobians).  An entry
-    is kept if it is nonzero at any probe; random perturbations of ``x`` make accidental zeros
-    (an entry that vanishes at one particular state) vanishingly unlikely.
-    Returns a boolean scipy CSC matrix.
+
+@entry_point
+def detect_sparsity(residual, x, x_old, t, dt, params, probes: int = 3, seed: int = 0, method: str = "jaxpr"):
+    """Sparsity pattern of ``dR/dx_new`` as a boolean scipy CSC matrix.
+
+    ``method="jaxpr"`` (the default): from the residual's jaxpr, by index sets propagated
+    primitive by primitive (:mod:`jaxanm._jaxpr_sparsity`), in memory and time O(nnz), never a
+    dense Jacobian.  The pattern holds for every value of ``x``, ``x_old``, ``t`` and ``dt``
+    (their values are not read); ``params`` are read where they decide which elements meet
+    (gather and scatter indices, a ``where``'s condition, a constant matrix's zeros).  A
+    residual that couples nearly every unknown to every other is refused with an
+    :class:`~jaxanm.InputError` (use a dense Jacobian).
+
+    ``method="probes"``: the nonzeros of ``probes`` dense Jacobians at random perturbations of
+    ``x`` (seeded by ``seed``), for small problems only (a check of the above; refused when the
+    dense Jacobians would not fit in memory).  An entry that vanishes at every probe (a factor
+    zero at these ``t``, ``dt`` or ``x_old``) is missed.
     """
+    if method == "jaxpr":
+        return jacobian_pattern(residual, x, (x_old, t, dt), (params,))
+    if method != "probes":
+        raise InputError(f"method must be 'jaxpr' or 'probes', got {method!r}")
+    dense_jacobian_fits(np.size(x), "detect_sparsity(method='probes')", "use method='jaxpr'")
     jac = dense_jacobian_function(residual)
     x = jnp.asarray(x, dtype=jnp.float64)
     rng = np.random.default_rng(seed)
