@@ -249,6 +249,8 @@ _NUMPY_MOVES = {
     "transpose": lambda ops, p: np.transpose(ops[0], p["permutation"]),
     "rev": lambda ops, p: np.flip(ops[0], axis=tuple(p["dimensions"])),
     "concatenate": lambda ops, p: np.concatenate(ops, axis=p["dimension"]),
+    "stack": lambda ops, p: np.stack(ops, axis=p["axis"]),
+    "tile": lambda ops, p: np.tile(ops[0], p["reps"]),
     "split": lambda ops, p: np.split(ops[0], np.cumsum(p["sizes"])[:-1], axis=p["axis"]),
     "broadcast_in_dim": _broadcast_in_dim,
     "slice": _slice,
