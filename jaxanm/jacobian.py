@@ -20,8 +20,10 @@ that moves makes ``A S`` anew at each tangent, at about the plain ``jvp``'s cost
 
 from __future__ import annotations
 
+import collections
 import functools
 import os
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -188,14 +190,26 @@ class SparseJacobian:
         return scipy.sparse.csc_matrix((data, self._rows, self._indptr), shape=(self.n, self.n))
 
 
-class _FrontierChain:
-    """``J S`` by the chain rule through the affine frontier (module docstring), with ``A S``
-    kept while the arguments the linear map reads are the same objects."""
+class _FrontierParts(NamedTuple):
+    """What the chain rule through the affine frontier needs of one residual and argument
+    layout, made once and shared by every :class:`SparseJacobian` of them (a path follower or a
+    run makes a new one per call: its compiled functions are found again here)."""
 
-    def __init__(self, split, used: list, batch: int | None):
-        self._used = used  # per flat argument leaf: read by the linear map's tangent
-        self._batch = batch  # colours seeded at once into A S (None: all)
-        self._kept_leaves, self._kept = None, None
+    seeded_frontier: Callable  # jitted (batch, seeds, x, *args) -> A S, batch static
+    chain: Callable  # jitted (A S, x, *args) -> J S
+    used: list  # per flat argument leaf: read by the linear map's tangent
+    frontier_size: int  # entries of the frontier values (A s has as many per colour)
+    per_color: int  # bytes of one colour's intermediates in A S (:func:`_frontier_bytes`)
+
+    @classmethod
+    def make(cls, residual, x, args):
+        """The parts, or None when the residual cannot be split or has no affine part."""
+        try:
+            split = split_affine(residual, jnp.asarray(x), *args, scalar_factors_affine=False)
+        except Exception:  # noqa: BLE001 - not splittable: the plain compressed jacfwd is correct
+            return None
+        if split.n_affine_eqns == 0:
+            return None
 
         def seeded_frontier(batch, seeds, x, *args):
             column = lambda s: jax.jvp(lambda y: split.linear(y, *args), (x,), (s,))[1]  # noqa: E731
@@ -207,62 +221,82 @@ class _FrontierChain:
             values = split.linear(x, *args)
             return jax.vmap(lambda ts: jax.jvp(lambda f: split.rest(f, *args), (values,), (ts,))[1])(frontier_seeds)
 
-        self._seeded_frontier = jax.jit(seeded_frontier, static_argnums=0)
-        self._chain = jax.jit(chain)
+        frontier = jax.eval_shape(split.linear, jnp.asarray(x), *args)
+        return cls(jax.jit(seeded_frontier, static_argnums=0), jax.jit(chain),
+                   _tangent_inputs(split.linear, x, args), sum(int(np.prod(f.shape)) for f in frontier),
+                   _frontier_bytes(split.linear, x, args))
+
+
+_PARTS: collections.OrderedDict = collections.OrderedDict()
+_MAX_PARTS = 64  # residuals and layouts whose frontier parts are kept, the oldest dropped first
+
+
+def _frontier_parts(residual, x, args) -> _FrontierParts | None:
+    """The shared :class:`_FrontierParts` of ``residual`` for the layout (structure, shapes and
+    dtypes) of ``(x, args)``."""
+    leaves, tree = jax.tree_util.tree_flatten((x, args))
+    key = (residual, tree, tuple((np.shape(v), str(getattr(v, "dtype", type(v).__name__))) for v in leaves))
+    if key in _PARTS:
+        _PARTS.move_to_end(key)
+    else:
+        if len(_PARTS) >= _MAX_PARTS:
+            _PARTS.popitem(last=False)
+        _PARTS[key] = _FrontierParts.make(residual, x, args)
+    return _PARTS[key]
+
+
+class _FrontierChain:
+    """``J S`` by the chain rule through the affine frontier (module docstring), with ``A S``
+    kept while the arguments the linear map reads are the same objects."""
+
+    def __init__(self, parts: _FrontierParts, batch: int | None):
+        self._parts = parts
+        self._seeded_frontier = parts.seeded_frontier
+        self._batch = batch  # colours seeded at once into A S (None: all)
+        self._kept_leaves, self._kept = None, None
 
     @classmethod
     def make(cls, residual, x, args, n_colors: int):
         """The chain for ``residual`` at these arguments, or None when it would not pay: the
         residual cannot be split, has no affine part, or ``A S`` would exceed the memory
         budget of :data:`JACOBIAN_MEMORY_BYTES`."""
-        try:
-            split = split_affine(residual, jnp.asarray(x), *args, scalar_factors_affine=False)
-        except Exception:  # noqa: BLE001 - not splittable: the plain compressed jacfwd is correct
+        parts = _frontier_parts(residual, x, args)
+        if parts is None or parts.frontier_size * n_colors * 8 > JACOBIAN_MEMORY_BYTES:
             return None
-        if split.n_affine_eqns == 0:
-            return None
-        frontier = jax.eval_shape(split.linear, jnp.asarray(x), *args)
-        size = sum(int(np.prod(f.shape)) for f in frontier) * n_colors * 8
-        if size > JACOBIAN_MEMORY_BYTES:
-            return None
-        return cls(split, _tangent_inputs(split.linear, x, args),
-                   _frontier_batch(split.linear, x, args, n_colors))
+        return cls(parts, _batch(parts.per_color, n_colors))
 
     def forget(self) -> None:
         """Drop the kept ``A S`` (the seeds changed)."""
         self._kept_leaves, self._kept = None, None
 
     def __call__(self, seeds, x, args):
-        """``J S`` (n_colors, n) at ``x`` (``A S`` made :func:`_frontier_batch` colours at a time).
+        """``J S`` (n_colors, n) at ``x`` (``A S`` made :func:`_frontier_bytes`-bounded batches
+        of colours at a time).
 
         ``A S`` is made anew whenever the arguments the linear map reads are new objects (a
         cloud that moves: then about the cost of the plain seeded ``jvp``), never taken from
         the plain path instead: the tangent is one function of its arguments, whatever came
         before, so that a run resumed from a checkpoint factorises bit for bit the matrices
         of an uninterrupted one."""
-        leaves = [leaf for leaf, used in zip(jax.tree_util.tree_leaves(args), self._used) if used]
+        leaves = [leaf for leaf, used in zip(jax.tree_util.tree_leaves(args), self._parts.used) if used]
         if self._kept is None or len(leaves) != len(self._kept_leaves) or any(
                 a is not b for a, b in zip(leaves, self._kept_leaves)):
             self._kept = None  # freed before the new one is made
             self._kept = self._seeded_frontier(self._batch, seeds, jnp.asarray(x), *args)
             self._kept_leaves = leaves  # held, so that an identical id cannot be a new object
-        return self._chain(self._kept, jnp.asarray(x), *args)
+        return self._parts.chain(self._kept, jnp.asarray(x), *args)
 
 
-def _frontier_batch(linear, x, args, n_colors: int) -> int | None:
-    """Colours to seed at once into ``A S`` so that their intermediates stay within
-    :data:`JACOBIAN_MEMORY_BYTES`: a power of two, at least one; None when all fit.
+def _frontier_bytes(linear, x, args) -> int:
+    """Bytes of one colour's intermediates in ``A S``, bounded by the sum of every value its
+    ``jvp`` computes (its jaxpr's outputs, as if all were alive at once).
 
-    A column's intermediates are bounded by the sum of every value its ``jvp`` computes (its
-    jaxpr's outputs, as if all were alive at once). The linear map applies each derivative
-    operator to the gathered stencil values separately, so these are many (N, m) arrays per
-    colour, far more than the nonzeros per colour that :func:`color_batch` budgets for the
-    whole residual."""
+    The linear map applies each derivative operator to the gathered stencil values separately,
+    so these are many (N, m) arrays per colour, far more than the nonzeros per colour that
+    :func:`color_batch` budgets for the whole residual."""
     xj = jnp.asarray(x)
     column = jax.make_jaxpr(lambda s: jax.jvp(lambda y: linear(y, *args), (xj,), (s,))[1])(xj)
-    per_color = sum(int(np.prod(v.aval.shape)) * v.aval.dtype.itemsize
-                    for eqn in column.jaxpr.eqns for v in eqn.outvars)
-    return _batch(per_color, n_colors)
+    return sum(int(np.prod(v.aval.shape)) * v.aval.dtype.itemsize for eqn in column.jaxpr.eqns for v in eqn.outvars)
 
 
 def _tangent_inputs(linear, x, args) -> list:
