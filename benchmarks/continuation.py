@@ -22,9 +22,12 @@ Cold: each case once in a fresh process (``--cold-case``), the wall of its first
 compilation included (``cold_s``; the import of jaxanm before it, ``import_s``, apart).  Warm:
 in this process, after one untimed call, ``--repeats`` calls (``wall_s``: the median;
 ``wall_spread_s``: min and max).  ``os.getloadavg()`` is recorded before each case.  Counts are
-what matters: other work shares the machine.  Run under the machine's timing lock:
+what matters: other work shares the machine.  Run under the machine's timing lock, with
+OpenBLAS on one thread (its second thread waits for a core other work holds on a shared machine:
+benchmarks/bratu_2d_scale.py):
 
-    flock /work/timing.lock python benchmarks/continuation.py [--repeats 3] [--out benchmarks/results/continuation]
+    OPENBLAS_NUM_THREADS=1 flock /work/timing.lock python benchmarks/continuation.py [--repeats 3]
+        [--out benchmarks/results/continuation]
 """
 
 from __future__ import annotations
@@ -260,7 +263,9 @@ def main():
             flush=True,
         )
         results.append(case)
-    command = "flock /work/timing.lock python benchmarks/continuation.py " + " ".join(sys.argv[1:])
+    threads = os.environ.get("OPENBLAS_NUM_THREADS")
+    command = (f"OPENBLAS_NUM_THREADS={threads} " if threads else "") + \
+        "flock /work/timing.lock python benchmarks/continuation.py " + " ".join(sys.argv[1:])
     summary = {"date": datetime.date.today().isoformat(), "cpus": os.cpu_count(), "command": command.strip(),
                "tol": TOL, "cases": results}
     out = pathlib.Path(args.out)
