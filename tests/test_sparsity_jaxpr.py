@@ -175,6 +175,16 @@ def test_continuation_without_a_pattern_finds_it_from_the_jaxpr():
     np.testing.assert_array_equal(runs[0].u, runs[1].u)
 
 
+def test_integrate_without_a_pattern_finds_it_from_the_jaxpr():
+    """A sparse run with no pattern colours the pattern found: the same steps as with the
+    pattern given, to the last bit."""
+    residual, x0, params = heat_1d(30)
+    pattern = scipy.sparse.diags([1, 1, 1], [-1, 0, 1], shape=(30, 30), dtype=bool)
+    runs = [jaxanm.integrate(residual, x0, params, t0=0.0, t1=0.05, dt=0.01, solver=jaxanm.Newton(tol=1e-10),
+                             jacobian="sparse", sparsity=given) for given in (pattern, None)]
+    np.testing.assert_array_equal(runs[0].xs, runs[1].xs)
+
+
 FSW_SCENES = ["fsw_small", "couette_small", "conduction_small"]
 
 
