@@ -153,7 +153,9 @@ def _bound_later(eqn, ins, shapes) -> list:
 
     def outputs():
         if not done:
-            out = eqn.primitive.bind(*[a.value() for a in ins], **eqn.params)
+            values = [a.value() for a in ins]
+            in_numpy = _NUMPY_VALUES.get(eqn.primitive.name)
+            out = in_numpy(values, eqn.params) if in_numpy else eqn.primitive.bind(*values, **eqn.params)
             done.append(out if eqn.primitive.multiple_results else [out])
         return done[0]
 
@@ -254,10 +256,28 @@ _NUMPY_MOVES = {
     "split": lambda ops, p: np.split(ops[0], np.cumsum(p["sizes"])[:-1], axis=p["axis"]),
     "broadcast_in_dim": _broadcast_in_dim,
     "slice": _slice,
+    "select_n": lambda ops, p: np.choose(np.asarray(ops[0], dtype=np.int64), ops[1:]),
 }
-"""Moves applied to the elements' numbers in numpy (no compilation)."""
-_MOVES = {"pad", "gather", "dynamic_slice", "dynamic_update_slice", "select_n"}
+"""Moves applied in numpy (no compilation) to the elements' numbers, or to known values."""
+_MOVES = {"pad", "gather", "dynamic_slice", "dynamic_update_slice"}
 """Moves applied to the elements' numbers by binding the primitive (compiled once per shape)."""
+def _on_operands(ufunc):
+    return lambda ops, p: ufunc(*ops)
+
+
+_NUMPY_VALUES = {
+    **{name: _on_operands(ufunc) for name, ufunc in (
+        ("add", np.add), ("sub", np.subtract), ("mul", np.multiply), ("neg", np.negative), ("max", np.maximum),
+        ("min", np.minimum), ("abs", np.abs), ("sign", np.sign), ("lt", np.less), ("le", np.less_equal),
+        ("gt", np.greater), ("ge", np.greater_equal), ("eq", np.equal), ("ne", np.not_equal),
+        ("and", np.bitwise_and), ("or", np.bitwise_or), ("not", np.invert))},
+    "convert_element_type": lambda ops, p: np.asarray(ops[0]).astype(p["new_dtype"]),
+    "argmax": lambda ops, p: np.argmax(ops[0], axis=p["axes"][0]).astype(p["index_dtype"]),
+    "argmin": lambda ops, p: np.argmin(ops[0], axis=p["axes"][0]).astype(p["index_dtype"]),
+    **_NUMPY_MOVES,
+}
+"""Known values made in numpy (no compilation): the index arithmetic of gathers and masks;
+numpy's operations on operands of one dtype are lax's (same dtype, same wrap-around)."""
 
 
 def _moved(eqn, ins, shapes, n):
