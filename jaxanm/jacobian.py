@@ -32,7 +32,7 @@ import scipy.sparse
 from jax.extend import core as jex_core
 
 from ._affine import split_affine
-from ._jaxpr_sparsity import jacobian_pattern
+from ._jaxpr_sparsity import PATTERN_ENTRIES_MAX, jacobian_pattern
 from ._x64 import entry_point
 from .errors import InputError
 
@@ -64,11 +64,26 @@ def color_columns(pattern) -> np.ndarray:
     n = csc.shape[1]
     if n == 0:
         return np.zeros(0, dtype=np.int64)
+    _few_enough_couplings(csc)
     structure = scipy.sparse.csc_matrix((np.ones(csc.nnz), csc.indices, csc.indptr), shape=csc.shape)
     graph = (structure.T @ structure).tocsr()  # columns sharing a row are neighbours
     order = np.argsort(-np.diff(csc.indptr), kind="stable").astype(np.int32)
     return np.asarray(_greedy_colors(graph.indptr.astype(np.int32), graph.indices.astype(np.int32), order),
                       dtype=np.int64)
+
+
+def _few_enough_couplings(csc) -> None:
+    """Refuse (:class:`~jaxanm.InputError`) a pattern whose colouring would not fit: a row that
+    couples r unknowns makes a clique of r^2 edges in ``P^T P`` and needs r colours, r seeded
+    columns of n entries each; :data:`~jaxanm._jaxpr_sparsity.PATTERN_ENTRIES_MAX` bounds r^2,
+    and sixteen times it the work of forming ``P^T P`` (the sum of r^2 over the rows)."""
+    per_row = np.bincount(csc.indices, minlength=csc.shape[0]).astype(np.float64)
+    densest = int(np.argmax(per_row))
+    if per_row[densest] ** 2 > PATTERN_ENTRIES_MAX or per_row @ per_row > 16 * PATTERN_ENTRIES_MAX:
+        raise InputError(f"the sparsity pattern's row {densest} couples {int(per_row[densest])} of {csc.shape[1]} "
+                         "unknowns (and its rows together too many for a colouring): a sparse Jacobian would seed "
+                         "about as many columns as a dense one; give jacobian='dense' for a small problem, or "
+                         "write the dense coupling apart from the residual (a bordered system)")
 
 
 @jax.jit
@@ -166,6 +181,8 @@ class SparseJacobian:
         self.colors = color_columns(csc)
         self.n_colors = int(self.colors.max()) + 1 if n else 0
         padded = -(-self.n_colors // _COLOR_BUCKET) * _COLOR_BUCKET
+        _memory_fits(DENSE_BYTES_PER_ENTRY * float(padded) * n, f"the coloured Jacobian ({self.n_colors} colours of "
+                     f"{n} columns, each seeded column holding n entries)", "give jacobian='dense' for a small problem")
         seeds = np.zeros((padded, n))
         seeds[self.colors, np.arange(n)] = 1.0
         self._seeds = seeds
@@ -321,11 +338,17 @@ def dense_jacobian_fits(n: int, argument: str, fix: str) -> None:
     """Refuse, with an :class:`~jaxanm.InputError` naming ``argument`` and ``fix``, a dense
     (n, n) Jacobian that would not fit in this machine's memory: ``jacfwd`` holds its seeds,
     the Jacobian and intermediates of that size (:data:`DENSE_BYTES_PER_ENTRY` per entry)."""
-    need = DENSE_BYTES_PER_ENTRY * float(n) ** 2
+    _memory_fits(DENSE_BYTES_PER_ENTRY * float(n) ** 2, f"{argument} (dense {n} x {n} Jacobians, with their "
+                 "intermediates)", fix)
+
+
+def _memory_fits(need: float, what: str, fix: str) -> None:
+    """Refuse (:class:`~jaxanm.InputError`) ``what`` when its ``need`` of bytes exceeds this
+    machine's memory."""
     have = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     if need > have:
-        raise InputError(f"{argument} forms dense {n} x {n} Jacobians, about {need / 2**30:.3g} GiB with their "
-                         f"intermediates, more than this machine's {have / 2**30:.3g} GiB of memory; {fix}")
+        raise InputError(f"{what} needs about {need / 2**30:.3g} GiB, more than this machine's "
+                         f"{have / 2**30:.3g} GiB of memory; {fix}")
 
 
 @entry_point

@@ -219,6 +219,16 @@ def test_a_dense_pattern_is_refused_before_it_is_built():
         detect_sparsity(residual, np.zeros(20000), None, 0.0, 0.1, None)
 
 
+def test_a_pattern_with_a_dense_row_is_refused_before_it_is_coloured():
+    """One equation reads all 20,000 unknowns (a global constraint): its columns all meet in that
+    row, so the colouring needs 20,000 colours and P^T P 4e8 edges; refused, naming the row."""
+    n = 20000
+    rows = np.concatenate([np.arange(n), np.zeros(n, dtype=int)])
+    pattern = scipy.sparse.csr_matrix((np.ones(2 * n, dtype=bool), (rows, np.tile(np.arange(n), 2))), shape=(n, n))
+    with pytest.raises(jaxanm.InputError, match="row 0 couples 20000 of 20000.*jacobian='dense'"):
+        jaxanm.color_columns(pattern)
+
+
 def test_dense_jacobians_that_cannot_fit_are_refused_before_they_start():
     """A million unknowns: a dense Jacobian is 8 TB; every entry point says which argument to change."""
     n = 10**6
