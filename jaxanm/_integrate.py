@@ -56,30 +56,25 @@ class Solution:
 def integrate(residual: Callable | SemiDiscrete, x0, params=None, *, t0: float, t1: float, dt: float, solver,
               scale=None, jacobian: str = "auto", sparsity=None, saveat: SaveAt | None = None,
               after_step: Callable | None = None, progress: bool = False, callback: Callable | None = None,
-              max_dt_halvings: int = 4, checkpoint=None, checkpoint_every: int = 0,
-              resume: bool = False, host_state: tuple | None = None,
-              controller: StepSizeController | None = None,
+              max_dt_halvings: int = 4, checkpoint=None, checkpoint_every: int = 0, resume: bool = False,
+              host_state: tuple | None = None, controller: StepSizeController | None = None,
               sensitivity: SensitivityMethod | None = None, scheme: TimeScheme | None = None) -> Solution:
     """Integrate ``R(x_new, x_old, t_new, dt, params) = 0`` by implicit Euler steps from t0 to t1,
     or ``F(u, u_dot, t, params) = 0`` by the steps of a time ``scheme``.
 
     Returns a :class:`Solution`.  Raises :class:`InputError` on invalid arguments, before any
     computation; :class:`StepFailure` or :class:`NonFiniteError` when a step failed even after
-    ``max_dt_halvings`` retries or an accepted state or its residual is not finite (message:
-    step, time, a_max, residual norm); they (and a ``KeyboardInterrupt``) carry the run's
-    statistics so far as ``stats``.
+    ``max_dt_halvings`` retries or an accepted state or its residual is not finite (message: step,
+    time, a_max, residual norm), with the run's statistics so far as ``stats`` (as a ``KeyboardInterrupt``).
 
     Parameters
     ----------
     residual : callable or SemiDiscrete
-        ``residual(x_new, x_old, t_new, dt, params) -> (n,)`` in ``jax.numpy``, jet-compatible:
-        the residual of one implicit-Euler step; or the semi-discrete ``F(u, u_dot, t, params)``
-        as a :class:`~jaxanm.SemiDiscrete`, which every scheme can use.
-    x0 : array (n,)
-        Initial state.
-    params : pytree of arrays
-        Traced parameters of the residual (changing values never recompiles), put on the device
-        once per change: the residual and the hooks receive jax arrays.
+        ``residual(x_new, x_old, t_new, dt, params) -> (n,)``, one implicit-Euler step's, in
+        ``jax.numpy``, jet-compatible; or a :class:`~jaxanm.SemiDiscrete` (any ``scheme``).
+    x0, params : array (n,), pytree of arrays
+        Initial state; traced parameters of the residual (changing values never recompiles), put
+        on the device once per change: the residual and the hooks receive jax arrays.
     t0, t1, dt : float
         Time span and step; the last step is shortened to end exactly at t1.  With a
         :class:`~jaxanm.StepController`, ``dt`` is the first step's size.
@@ -88,22 +83,20 @@ def integrate(residual: Callable | SemiDiscrete, x0, params=None, *, t0: float, 
     scale : float or array (n,)
         Characteristic magnitude of each unknown (series norms, Newton convergence test).
     jacobian, sparsity :
-        Tangent by dense or coloured compressed ``jacfwd`` (``"dense"``, ``"sparse"``, or ``"auto"``:
-        sparse when ``sparsity`` is given or n > 400); ``sparsity``: a scipy sparse pattern, a
-        callable ``params -> pattern``, or None (found from the residual's jaxpr).
+        ``"dense"``, ``"sparse"`` (coloured compressed ``jacfwd``) or ``"auto"`` (sparse when ``sparsity``
+        is given or n > 400); ``sparsity``: a scipy sparse pattern, a callable ``params -> pattern``,
+        or None (found from the residual's jaxpr).
     saveat : SaveAt, optional
-        What is kept (:class:`~jaxanm.SaveAt`): the state at given times (``ts``; the steps nearest
-        to them, or with a ``StepController`` steps ending exactly on them) or every k-th step
-        (``steps``), t0 and t1 always (default: every step); ``params`` also keeps the
-        parameters there (e.g. moving point clouds); ``fn(t, x, params) -> dict of arrays`` is
-        observed at t0 and after every accepted step (probe histories), returned in
-        ``Solution.observed`` as ``{"t": (M,), key: (M, ...)}`` and kept in checkpoints.
+        What is kept (:class:`~jaxanm.SaveAt`): the state at given times ``ts`` (the steps nearest
+        to them; with a ``StepController``, steps ending on them) or every k-th step (``steps``),
+        t0 and t1 always (default: every step); ``params`` keeps the parameters there too (moving
+        clouds); ``fn(t, x, params) -> dict of arrays`` is observed at t0 and after every accepted
+        step, returned in ``Solution.observed`` (``{"t": (M,), key: (M, ...)}``) and checkpointed.
     after_step : callable ``(t_new, x_new, params) -> params | Remap(params, x)``
         Host hook after every accepted step (Lagrangian motion, stencil rebuild); :class:`Remap`
         also replaces the state.  The arrays it returns must keep their shapes and dtypes.
     progress, callback :
-        A tqdm progress bar (time, steps/s, factorisations); ``callback(t_new, x_new, stats)``
-        after every accepted step.
+        A tqdm progress bar; ``callback(t_new, x_new, stats)`` after every accepted step.
     max_dt_halvings : int
         Retries of a failed step: fixed steps halve it, recursively up to this depth; a
         ``StepController`` retries it at a quarter of its size, at most this many times in a row.
@@ -117,20 +110,16 @@ def integrate(residual: Callable | SemiDiscrete, x0, params=None, *, t0: float, 
         picklable snapshot taken only between steps, goes into every checkpoint; on resume
         ``set(snapshot)`` restores it before the first step.
     controller : StepController or ConstantStepSize, optional
-        Fixed steps (None: :class:`~jaxanm.ConstantStepSize`) or adaptive ones
-        (:class:`~jaxanm.StepController`: sizes in ``stats.step_sizes``, refusals in ``stats.rejected_steps``).
+        Fixed steps (None: :class:`~jaxanm.ConstantStepSize`) or :class:`~jaxanm.StepController`'s.
     sensitivity : SensitivityMethod, optional
         Derivatives carried along the steps (:func:`jaxanm.sensitivities` passes a
         :class:`~jaxanm.sensitivity.ForwardSensitivity`): it gets every solved (sub-)step, may
-        polish the state the run goes on from, and every accepted step.  Not with
-        ``after_step``, a ``StepController``, checkpoints or another scheme than implicit Euler.
+        polish the state the run goes on from, and every accepted step.  Implicit Euler only,
+        without ``after_step``, a ``StepController`` or checkpoints.
     scheme : TimeScheme, optional
-        The time scheme (:class:`~jaxanm.ImplicitEuler`, the default; :class:`~jaxanm.BDF2`;
-        :class:`~jaxanm.ESDIRK`): it builds each step from implicit-Euler-shaped stage
-        equations ``F(x, (x - z) / (gamma h), t) = 0``, which ``solver`` solves, and gives the
-        ``StepController`` its error estimate and order.  Every scheme but implicit Euler needs
-        a :class:`~jaxanm.SemiDiscrete` residual.  A :class:`Remap` restarts a scheme that
-        carries a history (BDF2's previous state, an ESDIRK's derivative).
+        :class:`~jaxanm.ImplicitEuler` (default), :class:`~jaxanm.BDF2` or :class:`~jaxanm.ESDIRK`:
+        its implicit-Euler-shaped stages are solved by ``solver``, it gives a ``StepController`` its
+        estimate and order, a :class:`Remap` restarts it; all but implicit Euler need a ``SemiDiscrete``.
     """
     saveat = SaveAt() if saveat is None else saveat
     x0, scale = check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, saveat, controller)

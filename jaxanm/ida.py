@@ -265,7 +265,7 @@ def _check_start_residual(F, t0, x0, yp0, h0, params, consistency_tol):
 
 def _newton_pattern(g, x0, sparsity, t0, h0, params) -> scipy.sparse.csc_matrix:
     """The CSC pattern of IDA's Newton matrix: the given ``sparsity`` (a pattern or a callable
-    of ``params``), or detected from dense probes of ``g`` (:func:`_newton_matrix_residual`)."""
+    of ``params``), or detected from the jaxpr of ``g`` (:func:`_newton_matrix_residual`)."""
     n = x0.size
     if sparsity is None:
         pattern = detect_sparsity(g, x0, (x0, jnp.zeros(n), 0.37 / h0), t0, h0, params)
@@ -339,13 +339,10 @@ def integrate_ida(residual: Callable | SemiDiscrete, x0, params=None, *, t0: flo
     Parameters
     ----------
     residual : SemiDiscrete or callable
-        ``jaxanm.SemiDiscrete(F)`` with ``F(u, u_dot, t, params) -> (n,)``; or
-        ``residual(x_new, x_old, t_new, dt, params) -> (n,)`` in ``jax.numpy``, of the form of
-        the module docstring (``x_old`` only through a difference quotient of a linear map).
-    x0, params : array (n,), pytree
-        State at ``t0``; parameters of the residual (fixed for the run).
-    t0 : float
-        Initial time.
+        ``jaxanm.SemiDiscrete(F)``, ``F(u, u_dot, t, params) -> (n,)``; or a step residual
+        ``(x_new, x_old, t_new, dt, params) -> (n,)`` of the module docstring's form.
+    x0, params, t0 : array (n,), pytree, float
+        State at ``t0``; parameters of the residual (fixed for the run); the initial time.
     t_out : array of float
         Output times, strictly increasing, after ``t0`` (after ``t0 + 2 ic_dt`` without ``yp0``).
     rtol, atol : float
@@ -355,11 +352,10 @@ def integrate_ida(residual: Callable | SemiDiscrete, x0, params=None, *, t0: flo
         Characteristic magnitude of each unknown (as in :func:`jaxanm.integrate`).
     sparsity : scipy sparse matrix, callable ``params -> pattern``, or None
         Pattern of ``R_x`` and ``R_xold`` together (of ``F_u`` and ``F_u_dot``); None detects it
-        from dense probes
-        (:func:`jaxanm.detect_sparsity`, small problems only).
+        (:func:`jaxanm.detect_sparsity`).
     h0 : float
-        The ``dt`` of a step residual's row scalings (default ``1e-3`` of the span); the DAE does
-        not depend on it, the conditioning of its rows does.  Unused by a semi-discrete ``F``.
+        The ``dt`` of a step residual's row scalings (default ``1e-3`` of the span): the DAE does
+        not depend on it, its rows' conditioning does; unused by a semi-discrete ``F``.
     yp0 : array (n,), optional
         A consistent ``y'(t0)``; checked (``max |F| <= consistency_tol``).  Without it, the
         consistent start of the module docstring.

@@ -178,9 +178,7 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         if callback is not None:
             callback(t, stats)
 
-    host = None
-    if checkpoint is not None:
-        host = _host_state(scene, recorder, {"checkpoint_every": int(checkpoint_every)})
+    host = None if checkpoint is None else _host_state(scene, recorder, {"checkpoint_every": int(checkpoint_every)})
     try:
         sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver, scheme=scheme,
                                scale=model.scale(), jacobian="sparse", sparsity=model.sparsity,
