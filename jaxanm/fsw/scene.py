@@ -218,6 +218,11 @@ class Scene:
                "'lagrangian' on geometry.layout = 'graded' is not supported yet: the graded cloud is "
                "validated on fixed points only (its rezoning and the tool edge sliding past the fine "
                "rings are untested); use 'tracers' instead of 'lagrangian', or layout 'polar'")
+        _check("time.scheme", self.time.scheme, self.time.scheme == "euler" or "lagrangian" not in have,
+               "is invalid with the 'lagrangian' effect: the points move after every step and the state is "
+               "refitted on the rebuilt stencils, so the state a step starts from belongs to another "
+               "discretisation and the residual has no semi-discrete form (a multistep or Runge-Kutta scheme "
+               "would restart at every step); use time.scheme = 'euler', or 'tracers' instead of 'lagrangian'")
         self._validate_contact(have)
 
     def _validate_contact(self, have: set):

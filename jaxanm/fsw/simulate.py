@@ -26,34 +26,14 @@ import jaxanm
 from .discretisation import Model, discretise
 from .lagrangian import RunRecorder, motion_dt_max
 from .record import FSWResult
-from .scene import Scene, SceneError
+from .scene import Scene
 from .stability import TemperatureGuard
 from .start import continuation_state, quasi_static_state
 
 _STARTS = {"quasi_static": quasi_static_state, "continuation": continuation_state}
 """The solvers of the start flow per ``mechanics.start`` ("rest" solves none)."""
 
-__all__ = ["run", "scene_differences", "step_controller", "time_scheme"]
-
-
-def time_scheme(scene: Scene):
-    """The scene's :class:`jaxanm.TimeScheme` (``time.scheme``).
-
-    Raises :class:`jaxanm.fsw.scene.SceneError` for a scheme other than implicit Euler on a
-    Lagrangian scene: after every step the points move and the state is refitted on the new
-    stencils, so the old state a step starts from is another discretisation's, and the
-    residual is no semi-discrete one; a multistep or Runge-Kutta scheme would restart at every
-    step (its previous states and derivatives are those of the old cloud).
-    """
-    name = scene.time.scheme
-    scheme = jaxanm.make_scheme(name)
-    if not scheme.one_step and scene.has("lagrangian"):
-        raise SceneError(f"scene field 'time.scheme' = {name!r} is invalid with the 'lagrangian' effect: the points "
-                         "move after every step and the state is refitted on the rebuilt stencils, so the state a "
-                         "step starts from belongs to another discretisation and the residual has no semi-discrete "
-                         "form; a multistep or Runge-Kutta scheme would restart at every step.  Use "
-                         "time.scheme = 'euler', or fixed points ('tracers' instead of 'lagrangian')")
-    return scheme
+__all__ = ["run", "scene_differences", "step_controller"]
 
 
 def step_controller(scene: Scene, model: Model):
@@ -66,7 +46,8 @@ def step_controller(scene: Scene, model: Model):
     off the field at their new place by ``dt |DV/Dt|`` after each move (2e-3 of omega R1 at
     fsw_paper's dt), which no smaller next step reduces.  Values at the points, not nodal
     parameters: a Lagrangian cloud's parameters jump at every stencil rebuild, its values do
-    not.  Steps are bounded by :func:`motion_dt_max` when the points move.
+    not.  Steps are bounded by :func:`motion_dt_max` when the points move, and by
+    ``time.dt_max`` when it is set.
     """
     tm = scene.time
     if not tm.adaptive:
@@ -75,7 +56,8 @@ def step_controller(scene: Scene, model: Model):
     measured = [fields.index("T")] if "T" in fields else [fields.index(f) for f in ("u", "v")]
     scale = model.scale().reshape(len(fields), -1)[measured].ravel()
     return jaxanm.StepController(
-        rtol=tm.rtol, atol=tm.atol, dt_max=motion_dt_max(scene) if model.effects.lagrangian else math.inf,
+        rtol=tm.rtol, atol=tm.atol,
+        dt_max=min(motion_dt_max(scene) if model.effects.lagrangian else math.inf, tm.dt_max or math.inf),
         error_map=lambda x, p: model.values(x, p["st"])[:, measured].T.ravel(), error_scale=scale)
 
 
@@ -153,7 +135,7 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         (also on :class:`jaxanm.StepFailure`).
     """
     solver = scene.solver.make() if solver is None else solver
-    scheme = time_scheme(scene)
+    scheme = jaxanm.make_scheme(scene.time.scheme)  # the scene refuses one its points cannot serve
     _, stencils, model, params, x0 = discretise(scene)
     # the FSW step residual on fixed points is its own stage residual (module docstring)
     residual = model.residual if scheme.one_step else jaxanm.SemiDiscrete(step_residual=model.residual)
