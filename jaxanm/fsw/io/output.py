@@ -98,8 +98,8 @@ def spatial_accuracy(result) -> dict | None:
       ``rise_errors``, the same at every saved time from 0.01 s on (one solve,
       :func:`jaxanm.fsw.axisymmetric.rise_errors`).
 
-    At fsw_paper's dr the band is 0.28 points wide and the rise 15-18 % too high
-    (benchmarks/results/spatial_convergence.md).
+    At fsw_paper's dr the band is 0.28 points wide and the rise errs by 15-18 % (relative L2,
+    too hot; benchmarks/results/spatial_convergence.md).
     """
     from jaxanm.fsw import axisymmetric, geometry
     from jaxanm.fsw.scene import Scene
