@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
+from ._acceptance import CHECK_LIMIT
 from ._factorization import Factorization, counted_solve
 from ._factorization import factorize as counted_factorize
 from ._problem import Problem, compiled
@@ -44,12 +45,16 @@ START_ITERATIONS = 20
 
 
 class ContinuationFailure(StepFailure):
-    """A continuation step failed: a :class:`~jaxanm.StepFailure` located by the step and the
-    parameter ``lam`` there (also in ``t``, for code that handles time steps)."""
+    """Why a continuation step could not be completed: a :class:`~jaxanm.StepFailure` located
+    by the step and the parameter ``lam`` there (also in ``t``, for code that handles time
+    steps), with ``code``, the short reason a :class:`~jaxanm.Branch` ends with
+    (:attr:`~jaxanm.Branch.stopped`).  The path followers catch it and return the branch they
+    found; it is raised to the caller only for a starting point that cannot be used."""
 
-    def __init__(self, reason: str, *, step: int, lam: float, amax=None, residual_norm=None):
+    def __init__(self, reason: str, *, step: int, lam: float, amax=None, residual_norm=None,
+                 code: str = "singular"):
         super().__init__(reason, step=step, t=lam, amax=amax, residual_norm=residual_norm)
-        self.lam = float(lam)
+        self.lam, self.code = float(lam), code
         self.args = (f"continuation step {step} (lam = {self.lam:.8g}): {reason}; a_max = {_number(self.amax)}, "
                      f"|R|_inf = {_number(self.residual_norm)}",)
 
@@ -192,17 +197,33 @@ class Linearisation:
         """``R_U x = R_u x[:-1] + R_lam x[-1]`` (host product with the assembled tangent)."""
         return self.jacobian @ x[:-1] + self.dlam * x[-1]
 
+    def term_sizes(self) -> np.ndarray:
+        """``|R_u| |u| + |R_lam| |lam|`` per equation: how large the terms of R that cancel at a
+        solution are, each known to a relative round-off of eps (the state itself is stored to
+        eps |U|), so that R is computed at best to eps times this."""
+        jac = abs(self.jacobian)
+        return np.asarray(jac @ np.abs(self.point[:-1])).ravel() + np.abs(self.dlam) * abs(self.point[-1])
+
+    def determinant_sign(self) -> float | None:
+        """The sign of ``det B`` from the factors (None if the factorisation object cannot
+        tell: a ``factorize`` hook's without ``determinant_sign()``).  With ``z`` oriented by
+        the border (``row . z = 1``) it is the sign of ``det [R_U; z^T]``, which changes along a
+        branch only where R_U loses rank: at branch points, not at folds."""
+        sign = getattr(self.fact, "determinant_sign", None)
+        return None if sign is None else float(sign())
+
 
 class ExtendedSystem:
     """``R(U) = 0`` for ``U = (u, lam)``: residuals, linearisations (bordered, factorised,
     counted in ``stats``) and the series of the residual along a path.  ``factorize``: the
-    hook ``(matrix, stats) -> object with solve(rhs)`` (default :func:`jaxanm.factorize`)."""
+    hook ``(matrix, stats) -> object with solve(rhs)`` (default :func:`jaxanm.factorize`).
+    ``residual_function`` and ``params`` are the problem's (read by event location)."""
 
     def __init__(self, residual, U0, params, scale, jacobian: str, sparsity, stats: Stats, factorize=None):
         n = U0.size - 1
         self.n, self.scale, self.stats = n, scale, stats
         self.params = on_device(params_float64(params))
-        self._residual = residual
+        self.residual_function = residual
         self._factorize = counted_factorize if factorize is None else factorize
         self._fact: Factorization | None = None
         kind = jacobian_kind(jacobian, sparsity, n)
@@ -214,7 +235,7 @@ class ExtendedSystem:
     def _detected_pattern(self, U0):
         """R_u's pattern from dense probes around ``U0``, at two values of lam: an entry with a
         factor lam vanishes at lam = 0."""
-        step = _step_form(self._residual)
+        step = _step_form(self.residual_function)
         lam = U0[-1]
         probes = [detect_sparsity(step, U0[:-1], None, np.float64(at), None, self.params)
                   for at in (lam, lam + 0.1 * (1.0 + abs(lam)))]
@@ -241,43 +262,76 @@ class ExtendedSystem:
     def residual(self, U) -> np.ndarray:
         """``R(u, lam)`` on the host (counted)."""
         with self.stats.timer("series"):
-            r = np.asarray(compiled(self._residual).residual(U[:-1], np.float64(U[-1]), self.params))
+            r = np.asarray(compiled(self.residual_function).residual(U[:-1], np.float64(U[-1]), self.params))
         self.stats.residual_evaluations += 1
         return r
 
-    def linearise(self, U, row, *, step: int) -> Linearisation:
-        """R, R_u, R_lam at ``U``, the bordered matrix with ``row`` factorised (the previous
-        factors released first: one LU alive); :class:`ContinuationFailure` when R is not finite
-        or B cannot be factorised."""
+    def tangent_parts(self, U, *, step: int):
+        """``(R, R_u, R_lam)`` at ``U`` (R_u dense or sparse, as the system's Jacobian);
+        :class:`ContinuationFailure` (code ``"non_finite"``) when R or R_lam is not finite."""
         st = self.stats
         with st.timer("jacobian"):
-            r, dlam = (np.asarray(v) for v in _value_and_dlam(self._residual)(U[:-1], np.float64(U[-1]), self.params))
+            values = _value_and_dlam(self.residual_function)(U[:-1], np.float64(U[-1]), self.params)
+            r, dlam = (np.asarray(v) for v in values)
         st.residual_evaluations += 1
         r_norm = float(np.max(np.abs(r)))
         if not (np.isfinite(r_norm) and np.all(np.isfinite(dlam))):
-            raise ContinuationFailure("residual or dR/dlam not finite", step=step, lam=U[-1], residual_norm=r_norm)
-        jac = self._problem.tangent(U[:-1], None, np.float64(U[-1]), None, self.params)
+            raise ContinuationFailure("the residual or dR/dlam is not finite", step=step, lam=U[-1],
+                                      residual_norm=r_norm, code="non_finite")
+        return r, self._problem.tangent(U[:-1], None, np.float64(U[-1]), None, self.params), dlam
+
+    def factorise(self, matrix, *, step: int, lam: float):
+        """``matrix`` factorised through the system's hook, counted; the factors made before
+        are released first (one LU alive).  :class:`ContinuationFailure` (``"singular"``, or
+        ``"non_finite"`` for non-finite entries) when it cannot be factorised."""
         if self._fact is not None and hasattr(self._fact, "release"):
             self._fact.release()
         try:
-            self._fact = self._factorize(_bordered(jac, dlam, row), st)
+            self._fact = self._factorize(matrix, self.stats)
         except SingularMatrixError as exc:
-            raise ContinuationFailure(f"bordered matrix cannot be factorised ({exc})", step=step, lam=U[-1],
-                                      residual_norm=r_norm) from exc
-        return Linearisation(U, r, jac, dlam, row, self._fact, st)
+            code = "non_finite" if "non-finite" in str(exc) else "singular"
+            raise ContinuationFailure(f"the bordered matrix cannot be factorised ({exc})", step=step, lam=lam,
+                                      code=code) from exc
+        return self._fact
+
+    def linearise(self, U, row, *, step: int) -> Linearisation:
+        """R, R_u, R_lam at ``U``, the bordered matrix with ``row`` factorised
+        (:meth:`factorise`); :class:`ContinuationFailure` when R is not finite or B cannot be
+        factorised."""
+        r, jac, dlam = self.tangent_parts(U, step=step)
+        fact = self.factorise(bordered_matrix(jac, dlam[:, None], row[None, :]), step=step, lam=U[-1])
+        lin = Linearisation(U, r, jac, dlam, row, fact, self.stats)
+        if not np.all(np.isfinite(lin.z)):
+            raise ContinuationFailure("the tangent is not finite (the bordered matrix is numerically singular)",
+                                      step=step, lam=U[-1], residual_norm=float(np.max(np.abs(r))))
+        return lin
+
+    def round_off(self, lin: Linearisation, row) -> float:
+        """How far from the branch round-off alone leaves a point, in the scaled norm: the
+        correction ``B^-1 (eps s T)`` under the constraint ``row`` (one solve), T the sizes of R's
+        terms (:meth:`Linearisation.term_sizes`), s signs drawn once per size (round-off errors
+        add like random ones).  Newton cannot bring a point closer, nor can a step's end be
+        judged more finely, whatever the step."""
+        signs = np.random.default_rng(self.n).choice([-1.0, 1.0], self.n)
+        return self.norm(lin.constrained(np.finfo(float).eps * signs * lin.term_sizes(), row))
 
     def path(self, point, max_terms: int) -> "PathSeries":
         """The residual's series along a path from ``point`` (:class:`PathSeries`)."""
         return PathSeries(self, point, max_terms)
 
 
-def _bordered(jac, dlam, row):
-    """``[[R_u, R_lam], [row]]``: CSC when R_u is sparse, else a dense array."""
-    if scipy.sparse.issparse(jac):
-        column = scipy.sparse.csc_matrix(dlam[:, None])
-        corner = scipy.sparse.csc_matrix(row[None, -1:])
-        return scipy.sparse.bmat([[jac, column], [scipy.sparse.csc_matrix(row[None, :-1]), corner]], format="csc")
-    return np.block([[np.asarray(jac), dlam[:, None]], [row[None, :]]])
+def bordered_matrix(top_left, right, bottom, corner=None):
+    """``[[top_left, right], [bottom, corner]]`` (corner zeros by default): CSC when
+    ``top_left`` is sparse, else a dense array.  ``right`` (n, k) and ``bottom`` (k, m + k)
+    are dense, ``bottom``'s last k columns the corner's unless ``corner`` is given."""
+    k = right.shape[1]
+    if corner is None:
+        bottom, corner = bottom[:, :-k], bottom[:, -k:]
+    if scipy.sparse.issparse(top_left):
+        blocks = [[top_left, scipy.sparse.csc_matrix(right)],
+                  [scipy.sparse.csc_matrix(bottom), scipy.sparse.csc_matrix(corner)]]
+        return scipy.sparse.bmat(blocks, format="csc")
+    return np.block([[np.asarray(top_left), right], [bottom, corner]])
 
 
 class PathSeries:
@@ -297,7 +351,7 @@ class PathSeries:
     def __init__(self, system: ExtendedSystem, point, max_terms: int):
         self._system, self._point = system, point
         self._terms: list[np.ndarray] = []
-        joint = joint_function(system._residual)
+        joint = joint_function(system.residual_function)
         args = (system.params,)
         with system.stats.timer("series"):
             fns = compiled(joint).affine_functions(point, args)
@@ -318,24 +372,53 @@ class PathSeries:
         return f
 
 
-def corrected_start(system: ExtendedSystem, U0, direction: int, tol: float) -> Linearisation:
-    """The linearisation at the starting point, bordered by ``direction`` e_lam (its kernel
-    vector points towards ``direction`` lam); ``u0`` is first brought onto the branch by Newton
-    at fixed lam0 while its Newton correction exceeds ``tol`` (scaled norm), each iteration a
-    counted factorisation (``stats.newton_iterations``)."""
-    row = system.axis_row(system.n, float(direction))
-    U = np.array(U0, dtype=np.float64)
-    for iteration in range(START_ITERATIONS + 1):
-        lin = system.linearise(U, row, step=0)
-        dU = lin.solve(-lin.residual)  # the border row keeps lam fixed
+def settle(system: ExtendedSystem, lin: Linearisation, constraint, target: float, *, step: int,
+           max_iterations: int = START_ITERATIONS):
+    """Newton at ``lin.point`` (under ``constraint``, a border row: ``constraint . dU = 0``, and
+    re-linearised with ``lin.row`` at each iterate, counted) until its correction is at most
+    ``target`` (scaled): ``(linearisation at the point, last correction, iterations)``.
+
+    A correction that round-off alone explains (within ``CHECK_LIMIT`` times
+    :meth:`ExtendedSystem.round_off`) cannot fall further: it is accepted if that floor is within
+    ``target``, else :class:`ContinuationFailure` ``"round_off"``.  Corrections that do not at
+    least halve, or ``max_iterations`` of them: ``"corrector"``."""
+    previous, floor = np.inf, None
+    for iteration in range(max_iterations + 1):
+        dU = lin.constrained(-lin.residual, constraint)
         size = system.norm(dU)
-        if size <= tol:
-            return lin
-        if iteration == START_ITERATIONS or not np.isfinite(size):
-            raise ContinuationFailure(f"u0 is not a solution at lam0 and Newton at fixed lam0 did not bring it "
-                                      f"there in {START_ITERATIONS} iterations (last correction {size:.3g}); give "
-                                      "a point on the branch", step=0, lam=U[-1],
-                                      residual_norm=float(np.max(np.abs(lin.residual))))
-        U = U + dU
-        system.stats.newton_iterations += 1
+        if size <= target:
+            return lin, size, iteration
+        floor = system.round_off(lin, constraint) if floor is None else floor
+        if size <= CHECK_LIMIT * floor:
+            if floor <= target:
+                return lin, size, iteration
+            raise ContinuationFailure(f"round-off leaves the points {floor:.2g} (scaled) from the branch here, above "
+                                      f"the accuracy the steps promise ({target:.2g})", step=step, lam=lin.point[-1],
+                                      residual_norm=float(np.max(np.abs(lin.residual))), code="round_off")
+        if not (np.isfinite(size) and size <= 0.5 * previous) or iteration == max_iterations:
+            raise ContinuationFailure(f"Newton does not bring the point onto the branch (correction {size:.3g} after "
+                                      f"{iteration} iterations)", step=step, lam=lin.point[-1],
+                                      residual_norm=float(np.max(np.abs(lin.residual))), code="corrector")
+        previous, floor = size, None
+        lin = system.linearise(lin.point + dU, lin.row, step=step)
     raise AssertionError("unreachable")
+
+
+def corrected_start(system: ExtendedSystem, U0, direction: int, tol: float):
+    """The linearisation at the starting point, bordered by ``direction`` e_lam (its kernel
+    vector points towards ``direction`` lam), and the Newton iterations it took: ``u0`` is
+    first brought onto the branch by Newton at fixed lam0 while its correction exceeds
+    ``tol`` (scaled norm; :func:`settle`).  A start that cannot be used is the caller's to
+    change: :class:`InputError` saying why."""
+    row = system.axis_row(system.n, float(direction))
+    try:
+        lin = system.linearise(np.array(U0, dtype=np.float64), row, step=0)
+        lin, _, iterations = settle(system, lin, system.axis_row(system.n), tol, step=0)
+    except ContinuationFailure as failure:
+        fix = {"non_finite": "the residual is not finite at (u0, lam0) or on Newton's way from it: give a point "
+                             "inside its domain",
+               "singular": "the bordered matrix is singular at (u0, lam0): a branch point or a degenerate R_lam; start "
+                           "beside it (or from a branch-point event with start=)"}
+        raise InputError(f"u0 is not a usable starting point at lam0 = {U0[-1]:.8g}: {failure.reason}; "
+                         + fix.get(failure.code, "give a point on the branch (a solution at lam0)")) from failure
+    return lin, iterations

@@ -279,14 +279,16 @@ def test_newton_branch_limit_points_from_its_hermite_interpolant():
     np.testing.assert_allclose(folds.lam, [P_STAR, -P_STAR], rtol=0, atol=1e-2 * P_STAR)
 
 
-def test_a_failing_step_raises_step_failure_not_nan():
-    """A residual that is NaN at the start: StepFailure naming step, lam and the residual."""
-    with pytest.raises(jaxanm.StepFailure, match=r"step 0 \(lam = -1\).*not finite"):
+def test_a_start_outside_the_residual_s_domain_is_bad_input_not_nan():
+    """A residual that is NaN at the start: an InputError naming the start and why."""
+    with pytest.raises(jaxanm.InputError, match=r"u0 is not a usable starting point at lam0 = -1.*not finite"):
         jaxanm.continuation(lambda u, lam, p: u - jnp.sqrt(lam), np.zeros(1), -1.0, order=ORDER)
 
 
 def test_factorize_hook_is_used_for_every_factorisation():
-    """The ``factorize`` hook gets every bordered matrix (the door for reusing factors)."""
+    """The ``factorize`` hook gets every bordered matrix (the door for reusing factors): one
+    per point of the branch (three steps, four points), each point's factors serving the
+    series of the step from it and the events found at it."""
     seen = []
 
     def hook(matrix, stats):
@@ -296,7 +298,7 @@ def test_factorize_hook_is_used_for_every_factorisation():
     n = 19
     branch = jaxanm.continuation(bratu(n), np.zeros(n), 0.0, max_steps=3, order=ORDER, tol=TOL,
                                  scale=bratu_scale(n), factorize=hook)
-    assert seen == [(n + 1, n + 1)] * 3 == [(n + 1, n + 1)] * branch.stats.factorizations
+    assert seen == [(n + 1, n + 1)] * 4 == [(n + 1, n + 1)] * branch.stats.factorizations
 
 
 BAD_INPUTS = [

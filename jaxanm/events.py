@@ -1,0 +1,264 @@
+"""Events on a branch: what path following finds between its points (folds, branch points, and
+later kinds), and the hook through which it finds them.
+
+Every point of a walk is factorised (the bordered matrix ``B`` of :mod:`jaxanm.bordered`).
+After each point the walk calls its **detectors** with a :class:`StepEnd`: the point, the
+step that ended there (its series), and the factorised linearisation.  A detector returns
+the :class:`Event` values it found in that step (usually none); they are kept on the branch
+in branch order (:attr:`jaxanm.Branch.events`).  The built-in detectors, chosen by
+``events=`` of :func:`jaxanm.continuation`, are in :data:`DETECTORS`; ``on_step=`` adds one
+of the user's.  A detector keeps its own state between calls (it sees the points in order).
+
+- ``"fold"`` (:class:`FoldDetector`): a root of ``d lam / d a`` of a step's series where lam
+  turns by more than the branch's accuracy (:func:`fold_roots`); lam is stationary there, so
+  the ANM's series gives it to round-off.  On a Newton branch, whose interpolant is only
+  cubic, the tangent's turn between the points decides, and the fold is polished by Newton on
+  its augmented system.
+- ``"branch_point"`` (:class:`BranchPointDetector`): ``det B`` changes sign across a step that
+  passes a simple branch point, and only there (its sign is read off the LU already made);
+  the point is then located by Newton on its augmented system (:mod:`jaxanm._augmented`) and
+  its two tangents come from the algebraic bifurcation equation (:mod:`jaxanm.switching`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+from typing import Any, Callable, Mapping, NamedTuple
+
+import numpy as np
+
+from ._augmented import locate_branch_point, locate_fold
+from ._real_roots import real_roots, sign_changes
+from .bordered import ContinuationFailure, ExtendedSystem, Linearisation
+from .switching import branch_tangents
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Event:
+    """Something found on a branch between two of its points.
+
+    Attributes
+    ----------
+    kind : str
+        ``"fold"`` (a limit point in lam) or ``"branch_point"`` (a simple bifurcation); other
+        detectors add their own kinds.
+    lam : float
+        The parameter at the event.
+    u : ndarray (n,)
+        The unknowns at the event.
+    step : int
+        Index of the branch step it lies on (step i goes from point i to point i + 1).
+    s : float
+        Its arclength along the branch (:attr:`jaxanm.Branch.s`).
+    tangent : ndarray (n+1,)
+        The branch's unit tangent there (scaled norm, oriented along the branch).
+    data : mapping
+        What is particular to the kind (read-only; arrays are the event's own):
+
+        - fold: ``"null_vector"`` (n,), the unit null vector of R_u (the tangent's u part);
+          ``"left_null_vector"`` (n,) when the fold was polished (Newton branches);
+          ``"located"``: ``"series"`` or ``"augmented"`` (Newton on the augmented system).
+        - branch_point: ``"tangents"`` (2, n+1), the unit tangents of the branch followed and
+          of the bifurcated branch (the second one's largest entry positive: ``direction=+1``
+          of a switch follows it); ``"null_vectors"`` (n+1, 2), an orthonormal basis (scaled)
+          of R_U's null space; ``"left_null_vector"`` (n,), R_u's left null vector ``psi``;
+          ``"abe"`` (2, 2), the algebraic bifurcation equation's coefficients
+          ``psi^T R_UU[e_j, e_k]`` in that basis; ``"converged"``: whether Newton located it
+          to round-off (else the event is where it stopped).
+    """
+
+    kind: str
+    lam: float
+    u: np.ndarray
+    step: int
+    s: float
+    tangent: np.ndarray
+    data: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        object.__setattr__(self, "data", types.MappingProxyType(dict(self.data)))
+
+    def __repr__(self) -> str:
+        return f"Event({self.kind!r}, lam={self.lam:.10g}, step={self.step}, s={self.s:.6g})"
+
+
+class StepSeries(NamedTuple):
+    """The step that ended at a point: where it started (``start`` (n+1,), at arclength
+    ``s``), its length ``a`` (scaled pseudo-arclength) and its ``series`` (q, n+1):
+    ``U(a') = start + sum_k a'^k series[k-1]`` for ``a'`` in ``[0, a]`` (the ANM's own series;
+    Newton's cubic Hermite interpolant of the step)."""
+
+    start: np.ndarray
+    s: float
+    a: float
+    series: np.ndarray
+
+    def at(self, a: float) -> np.ndarray:
+        """``U`` on the step's series at ``a``."""
+        return self.start + (a ** np.arange(1, self.series.shape[0] + 1)) @ self.series
+
+    def derivative(self, a: float) -> np.ndarray:
+        """``dU/da`` of the step's series at ``a``."""
+        k = np.arange(1, self.series.shape[0] + 1)
+        return (k * a ** (k - 1)) @ self.series
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class StepEnd:
+    """What a detector is told at each point of a walk (the hook ``on_step`` of
+    :func:`jaxanm.continuation` gets the same).
+
+    Attributes
+    ----------
+    index : int
+        The point's index on the branch (0: the start; the step that ended here is
+        ``index - 1``).
+    point : ndarray (n+1,)
+        ``U = (u, lam)`` at the point.
+    tangent : ndarray (n+1,)
+        The unit tangent there (scaled norm), oriented along the branch.
+    s : float
+        The point's arclength.
+    linearisation : Linearisation or None
+        The bordered matrix ``[[R_u, R_lam], [w^T]]`` factorised at the point (or at Newton's
+        last iterate, within tol of it): ``solve``, ``constrained``, ``z`` (its kernel
+        vector), ``jacobian`` (R_u, dense or scipy sparse), ``dlam``, ``residual``,
+        ``determinant_sign()``.  Solving with it costs no factorisation (until another one is
+        made: the walk keeps one LU alive, so a detector that factorises must expect its
+        solves to refactorise, counted).  None at a point where the matrix is singular (the
+        branch point a switched branch starts from).
+    system : ExtendedSystem
+        The problem: ``residual(U)``, ``linearise``, ``norm``, ``scale``, ``params``, ``stats``.
+    step : StepSeries or None
+        The step that ended here (None at the start).
+    """
+
+    index: int
+    point: np.ndarray
+    tangent: np.ndarray
+    s: float
+    linearisation: Linearisation | None
+    system: ExtendedSystem
+    step: StepSeries | None
+
+
+def fold_roots(series, a: float, noise: float, ends_lam: tuple | None = None) -> np.ndarray:
+    """Where a step holds folds: the roots in ``[0, a)`` of ``d lam / d a`` of its ``series``
+    across which it changes sign and where lam turns by more than ``noise`` (the branch's
+    accuracy in lam): neighbouring roots whose lams differ by less are a wiggle, a root whose
+    lam is within ``noise`` of both step ends is a flat stretch, not a fold.
+
+    ``ends_lam``: the lam components of the exact unit tangents at the step's ends, for a
+    "series" that is only an interpolant (Newton's): a fold turns the tangent, so the number
+    of folds has the parity of their sign change; when the roots left disagree, the parity
+    decides (one fold, at the root of the most extreme lam, or none)."""
+    lam_series = np.append(0.0, series[:, -1])
+    slope = np.arange(1, series.shape[0] + 1) * series[:, -1]
+    roots = list(sign_changes(slope, real_roots(slope, a, closed=False), a))
+    lam = [float(np.polynomial.polynomial.polyval(r, lam_series)) for r in roots]
+    j = 0
+    while j + 1 < len(roots):
+        if abs(lam[j] - lam[j + 1]) < noise:
+            del roots[j:j + 2], lam[j:j + 2]
+            j = max(j - 1, 0)
+        else:
+            j += 1
+    ends = (0.0, float(np.polynomial.polynomial.polyval(a, lam_series)))
+    keep = [k for k, value in enumerate(lam) if max(abs(value - ends[0]), abs(value - ends[1])) >= noise]
+    roots, lam = [roots[k] for k in keep], [lam[k] for k in keep]
+    if ends_lam is None:
+        return np.array(roots)
+    turns = (ends_lam[0] > 0) != (ends_lam[1] > 0)
+    if len(roots) % 2 == int(turns):
+        return np.array(roots)
+    if not (turns and roots):
+        return np.zeros(0)
+    return np.array([roots[int(np.argmax(lam) if ends_lam[0] > 0 else np.argmin(lam))]])
+
+
+class FoldDetector:
+    """Folds in lam (module docstring); ``polish``: locate them on the augmented system
+    (Newton branches) instead of taking the series' root."""
+
+    def __init__(self, system: ExtendedSystem, tol: float, polish: bool):
+        self.system, self.tol, self.polish = system, tol, polish
+        self.previous: np.ndarray | None = None
+
+    def __call__(self, end: StepEnd) -> list:
+        previous, self.previous, step = self.previous, end.tangent, end.step
+        if previous is None or step is None:
+            return []
+        # the branch's accuracy in lam: Newton's points to tol, the ANM's series to tol a (CHECK_LIMIT's leeway)
+        noise = 10 * self.tol * (1.0 if self.polish else step.a) * self.system.scale[-1]
+        ends = (previous[-1], end.tangent[-1]) if self.polish else None
+        return [self._event(end.index, step, root) for root in fold_roots(step.series, step.a, noise, ends)]
+
+    def _event(self, index: int, step: StepSeries, root: float) -> Event:
+        U, t = step.at(root), step.derivative(root)
+        t = t / self.system.norm(t)
+        data: dict = {"null_vector": t[:-1] / np.linalg.norm(t[:-1]), "located": "series"}
+        if self.polish:
+            try:
+                found = locate_fold(self.system, U, t[:-1], step=index)
+            except ContinuationFailure:
+                found = None
+            if found is not None and found.converged:
+                U = found.U
+                data.update(null_vector=found.null[:-1, 0], left_null_vector=found.psi, located="augmented")
+        return Event("fold", float(U[-1]), U[:-1], index - 1, step.s + root, t, data)
+
+
+class BranchPointDetector:
+    """Simple branch points (module docstring): the sign of ``det B`` at every point, and a
+    test function ``1 / (c . B^-1 b)`` (fixed random b, c), which vanishes linearly at the
+    branch point, to place Newton's first guess in the step by linear interpolation."""
+
+    def __init__(self, system: ExtendedSystem):
+        self.system = system
+        rng = np.random.default_rng(system.n + 1)
+        self.b, self.c = rng.standard_normal(system.n + 1), rng.standard_normal(system.n + 1)
+        self.previous: tuple | None = None
+
+    def __call__(self, end: StepEnd) -> list:
+        lin = end.linearisation
+        sign = None if lin is None else lin.determinant_sign()
+        if lin is None or sign is None:
+            self.previous = None
+            return []
+        test = 1.0 / float(self.c @ lin.solve(self.b[:-1], self.b[-1]))
+        previous, self.previous, step = self.previous, (sign, test), end.step
+        if previous is None or previous[0] == sign or step is None:
+            return []
+        fraction = previous[1] / (previous[1] - test) if np.isfinite(previous[1] - test) else 0.5
+        return [self._event(end.index, step, float(np.clip(fraction, 0.0, 1.0)) * step.a, lin)]
+
+    def _event(self, index: int, step: StepSeries, a: float, lin: Linearisation) -> Event:
+        system = self.system
+        U, t = step.at(a), step.derivative(a)
+        t = t / system.norm(t)
+        phi = lin.constrained(self.b[:-1], system.tangent_row(t))  # inverse iteration: B's near-null direction
+        try:
+            found = locate_branch_point(system, U, t, phi / system.norm(phi), step=index)
+        except ContinuationFailure:
+            return Event("branch_point", float(U[-1]), U[:-1], index - 1, step.s + a, t, {"converged": False})
+        tangents, abe = branch_tangents(system, found, t)
+        first = step.series[0] / system.norm(step.series[0])  # the step's parameter is <U - U_s, U_1>
+        s = step.s + float(np.clip(system.dot(found.U - step.start, first), 0.0, step.a))
+        return Event("branch_point", float(found.U[-1]), found.U[:-1], index - 1, s, tangents[0],
+                     {"tangents": tangents, "null_vectors": found.null, "left_null_vector": found.psi, "abe": abe,
+                      "converged": found.converged})
+
+
+DETECTORS: dict[str, Callable[..., Callable[[StepEnd], list]]] = {
+    "fold": lambda system, tol, method: FoldDetector(system, tol, polish=(method == "newton")),
+    "branch_point": lambda system, tol, method: BranchPointDetector(system),
+}
+"""The built-in detectors by event kind: ``make(system, tol, method) -> detector``, a callable
+``StepEnd -> list of Event``.  A new kind of event registers its detector here."""
+
+
+def detectors(kinds, system: ExtendedSystem, tol: float, method: str, on_step=None) -> list:
+    """The detectors of ``kinds`` (keys of :data:`DETECTORS`), then the user's ``on_step``."""
+    made = [DETECTORS[kind](system, tol, method) for kind in kinds]
+    return made + ([on_step] if on_step is not None else [])

@@ -1,0 +1,102 @@
+"""A branch that cannot go on returns what it found (:attr:`jaxanm.Branch.stopped`,
+:attr:`jaxanm.Branch.message`), and the default step control goes as far as the problem's
+conditioning allows.
+
+The family: the 1D Bratu problem ``u'' + lam e^u = 0`` on (0, 1), ``u(0) = u(1) = 0``, central
+differences on N interior points, its residual written with the 1/h^2 factor ("unscaled") and
+without it (multiplied through by h^2, "scaled"), followed from u = 0 at lam = 0 with no end
+condition and ``max_steps=200``.  Past the fold the upper branch climbs without bound as lam
+falls towards 0 (u(1/2) ~ 2 ln(1 / lam) ...): the state grows, lam shrinks, and the branch
+must end with a reason, its fold reported, never an exception.  The fold is checked against
+the discrete fold solved directly (Newton on the extended system R = 0, R_u phi = 0,
+|phi| = 1, dense, numpy: :func:`discrete_fold`).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxanm
+
+
+@functools.lru_cache(maxsize=None)
+def bratu(n: int):
+    """The discrete Bratu residual on ``n`` interior points, its rows multiplied by
+    ``params["rows"]``: 1 keeps the 1/h^2 factor (rows of size 4 |u| / h^2), h^2 writes it
+    without (rows of size 4 |u|).  One object per n, the factor a traced parameter, so both
+    forms share one compilation."""
+    h = 1.0 / (n + 1)
+
+    def residual(u, lam, params):
+        up = jnp.concatenate([jnp.zeros(1), u, jnp.zeros(1)])
+        return params["rows"] * ((up[2:] - 2.0 * u + up[:-2]) / h**2 + lam * jnp.exp(u))
+
+    return residual
+
+
+def rows(n: int, form: str) -> dict:
+    """The params of :func:`bratu` for the residual written with (``"unscaled"``) or without
+    (``"scaled"``) the 1/h^2 factor."""
+    return {"rows": 1.0 if form == "unscaled" else 1.0 / (n + 1) ** 2}
+
+
+@functools.lru_cache(maxsize=None)
+def discrete_fold(n: int) -> float:
+    """The discrete Bratu fold lam_c(N), solved directly: Newton on R(u, lam) = 0,
+    R_u(u, lam) phi = 0, phi . phi = 1 (dense numpy; the unscaled form, whose fold is the
+    scaled form's), from the continuum fold's neighbourhood, to a step below 1e-14."""
+    h = 1.0 / (n + 1)
+    lap = (np.diag(np.full(n, -2.0)) + np.diag(np.ones(n - 1), 1) + np.diag(np.ones(n - 1), -1)) / h**2
+    x = np.linspace(h, 1.0 - h, n)
+    u, phi, lam = 1.2 * np.sin(np.pi * x), np.sin(np.pi * x) / np.sqrt(n / 2), 3.5
+    for _ in range(40):
+        e = np.exp(u)
+        jac = lap + np.diag(lam * e)
+        rows = np.block([[jac, np.zeros((n, n)), e[:, None]],
+                         [np.diag(lam * e * phi), jac, (e * phi)[:, None]],
+                         [np.zeros((1, n)), 2.0 * phi[None, :], np.zeros((1, 1))]])
+        step = np.linalg.solve(rows, -np.concatenate([lap @ u + lam * e, jac @ phi, [phi @ phi - 1.0]]))
+        u, phi, lam = u + step[:n], phi + step[n:2 * n], lam + step[-1]
+        if np.max(np.abs(step)) < 1e-14 * max(1.0, np.max(np.abs(u))):
+            return float(lam)
+    raise AssertionError(f"the direct fold solve did not converge for N = {n}")
+
+
+def check_ends_well(branch: jaxanm.Branch, n: int):
+    """Past the fold, ended with a reason and a one-line message, the fold an event at the
+    discrete fold's lam to 1e-8 relative."""
+    assert branch.stopped in jaxanm.Branch.STOP_REASONS, branch.stopped
+    assert branch.message and "\n" not in branch.message
+    assert np.all(np.isfinite(branch.u)) and np.all(np.isfinite(branch.lam))
+    folds = [e for e in branch.events if e.kind == "fold"]
+    assert len(folds) == 1, [(e.kind, e.lam) for e in branch.events]
+    assert branch.lam[-1] < folds[0].lam and branch.u[-1, n // 2] > folds[0].u[n // 2]  # past the fold
+    # the series locates the fold to round-off of lam along it (lam is stationary there):
+    # 1e-8 relative is the accuracy asked of a located event
+    assert abs(folds[0].lam - discrete_fold(n)) <= 1e-8 * discrete_fold(n), (folds[0].lam, discrete_fold(n))
+
+
+@pytest.mark.parametrize("form", ["unscaled", "scaled"])
+@pytest.mark.parametrize("n", [15, 63])
+def test_bratu_from_rest_without_an_end_passes_the_fold_and_ends_well(n, form):
+    """The recipe a new user tries first: ``continuation(residual, zeros(N), 0.0, params,
+    max_steps=200)``, no end condition, default order and tol (it raised at step 11 on the
+    unscaled N = 63: its end points' distance from the branch, left by one chord correction
+    after long steps, was taken for a round-off floor)."""
+    branch = jaxanm.continuation(bratu(n), np.zeros(n), 0.0, rows(n, form), max_steps=200)
+    print(f"\nN = {n} {form}: {branch.a.size} steps, stopped {branch.stopped!r}: {branch.message}")
+    check_ends_well(branch, n)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("form", ["unscaled", "scaled"])
+@pytest.mark.parametrize("n", [255, 1023])
+def test_bratu_on_fine_grids_passes_the_fold_and_ends_well(n, form):
+    """As above on fine grids, where the unscaled rows reach 4 |u| / h^2 ~ 1e8."""
+    branch = jaxanm.continuation(bratu(n), np.zeros(n), 0.0, rows(n, form), max_steps=200)
+    print(f"\nN = {n} {form}: {branch.a.size} steps, stopped {branch.stopped!r}: {branch.message}")
+    check_ends_well(branch, n)
