@@ -84,9 +84,9 @@ def _arclength_step(system, U, t, ds, opts: Options, step):
 def _newton(system, U, row, target, opts: Options, step):
     """Newton on ``R(U) = 0``, ``row . U = target`` from ``U``: ``((U, linearisation at the last
     iterate, last correction) or None when it diverges or does not converge, the updates
-    made)``.  Corrections that stall within round-off of the point
-    (:meth:`ExtendedSystem.round_off`) above ``tol``: :class:`ContinuationFailure`
-    ``"round_off"``."""
+    made)``.  Corrections that stall (at the point's round-off floor) within ``CHECK_LIMIT tol``
+    are accepted; above, within round-off's bound (:meth:`ExtendedSystem.round_off`):
+    :class:`ContinuationFailure` ``"round_off"``."""
     previous = np.inf
     for iteration in range(opts.max_iter):
         try:
@@ -96,10 +96,12 @@ def _newton(system, U, row, target, opts: Options, step):
         dU = lin.solve(-lin.residual, target - row @ U)
         size = system.norm(dU)
         if not (np.isfinite(size) and size < previous):
-            floor = system.round_off(lin, row) if np.isfinite(size) else np.inf
-            if size <= CHECK_LIMIT * floor and floor > opts.tol:
-                raise ContinuationFailure(f"round-off leaves the points {floor:.2g} (scaled) from the branch here, "
-                                          f"above tol = {opts.tol:g}", step=step, lam=U[-1], code="round_off")
+            if size <= CHECK_LIMIT * opts.tol:  # stalled at round-off within the leeway: as converged as can be
+                return (U + dU, lin, size), iteration + 1
+            if np.isfinite(size) and size <= CHECK_LIMIT * system.round_off(lin, row):
+                raise ContinuationFailure(f"Newton's corrections stall at {size:.2g} (scaled) from the branch, "
+                                          f"within round-off of R's terms, above tol = {opts.tol:g}", step=step,
+                                          lam=U[-1], code="round_off")
             return None, iteration
         U = U + dU
         if size <= opts.tol:

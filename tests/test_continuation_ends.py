@@ -27,28 +27,30 @@ import jaxanm
 def bratu(n: int):
     """The discrete Bratu residual on ``n`` interior points, its rows multiplied by
     ``params["rows"]``: 1 keeps the 1/h^2 factor (rows of size 4 |u| / h^2), h^2 writes it
-    without (rows of size 4 |u|).  One object per n, the factor a traced parameter, so both
-    forms share one compilation."""
+    without (rows of size 4 |u|); its unknowns are ``v = c u``, ``c = params["c"]``.  One
+    object per n, the factors traced parameters, so every variant shares one compilation."""
     h = 1.0 / (n + 1)
 
-    def residual(u, lam, params):
+    def residual(v, lam, params):
+        u = v / params["c"]
         up = jnp.concatenate([jnp.zeros(1), u, jnp.zeros(1)])
         return params["rows"] * ((up[2:] - 2.0 * u + up[:-2]) / h**2 + lam * jnp.exp(u))
 
     return residual
 
 
-def rows(n: int, form: str) -> dict:
+def rows(n: int, form: str, c: float = 1.0) -> dict:
     """The params of :func:`bratu` for the residual written with (``"unscaled"``) or without
-    (``"scaled"``) the 1/h^2 factor."""
-    return {"rows": 1.0 if form == "unscaled" else 1.0 / (n + 1) ** 2}
+    (``"scaled"``) the 1/h^2 factor, unknowns ``c u``."""
+    return {"rows": 1.0 if form == "unscaled" else 1.0 / (n + 1) ** 2, "c": c}
 
 
 @functools.lru_cache(maxsize=None)
 def discrete_fold(n: int) -> float:
     """The discrete Bratu fold lam_c(N), solved directly: Newton on R(u, lam) = 0,
     R_u(u, lam) phi = 0, phi . phi = 1 (dense numpy; the unscaled form, whose fold is the
-    scaled form's), from the continuum fold's neighbourhood, to a step below 1e-14."""
+    scaled form's), from the continuum fold's neighbourhood, until its step is below 1e-12 of
+    the state (quadratic convergence: the step after it is at round-off)."""
     h = 1.0 / (n + 1)
     lap = (np.diag(np.full(n, -2.0)) + np.diag(np.ones(n - 1), 1) + np.diag(np.ones(n - 1), -1)) / h**2
     x = np.linspace(h, 1.0 - h, n)
@@ -61,7 +63,7 @@ def discrete_fold(n: int) -> float:
                          [np.zeros((1, n)), 2.0 * phi[None, :], np.zeros((1, 1))]])
         step = np.linalg.solve(rows, -np.concatenate([lap @ u + lam * e, jac @ phi, [phi @ phi - 1.0]]))
         u, phi, lam = u + step[:n], phi + step[n:2 * n], lam + step[-1]
-        if np.max(np.abs(step)) < 1e-14 * max(1.0, np.max(np.abs(u))):
+        if np.max(np.abs(step)) < 1e-12 * np.max(np.abs(u)):
             return float(lam)
     raise AssertionError(f"the direct fold solve did not converge for N = {n}")
 
@@ -100,3 +102,64 @@ def test_bratu_on_fine_grids_passes_the_fold_and_ends_well(n, form):
     branch = jaxanm.continuation(bratu(n), np.zeros(n), 0.0, rows(n, form), max_steps=200)
     print(f"\nN = {n} {form}: {branch.a.size} steps, stopped {branch.stopped!r}: {branch.message}")
     check_ends_well(branch, n)
+
+
+@functools.lru_cache(maxsize=None)
+def upper_branch(n: int) -> jaxanm.Branch:
+    """N = n, unscaled, 40 steps from rest (past the fold, u(1/2) ~ 60): points on the upper
+    branch where its state is large."""
+    return jaxanm.continuation(bratu(n), np.zeros(n), 0.0, rows(n, "unscaled"), max_steps=40, events=())
+
+
+def test_round_off_bound_bounds_what_newton_stalls_at():
+    """At points of the upper branch (u(1/2) from 2 to 60), Newton iterated to its stall
+    measures the round-off floor: its corrections, once they stop halving, are below the
+    bound made from eps times the sizes of R's terms through the bordered solve
+    (``ExtendedSystem.round_off``, what the walk classifies stalls with).  Measured ratios
+    0.002 to 0.1 (the stencil's differences of nearby values are exact); asserted <= 1."""
+    from jaxanm.bordered import ExtendedSystem
+    from jaxanm.stats import Stats
+
+    n = 63
+    branch = upper_branch(n)
+    with jaxanm.float64():
+        system = ExtendedSystem(bratu(n), np.append(branch.u[0], 0.0), rows(n, "unscaled"), np.ones(n + 1),
+                                "dense", None, Stats())
+        for i in (5, 15, 25, 40):
+            U, row = np.append(branch.u[i], branch.lam[i]), system.tangent_row(branch.tangent[i])
+            sizes = []
+            for _ in range(6):
+                lin = system.linearise(U, row, step=0)
+                dU = lin.constrained(-lin.residual, row)
+                sizes.append(system.norm(dU))
+                U = U + dU
+            stall, bound = max(sizes[3:]), system.round_off(lin, row)
+            print(f"u(1/2) = {branch.u[i, n // 2]:.3g}: Newton stalls at {stall:.2g}, bound {bound:.2g}")
+            assert 0 < stall <= bound
+
+
+def test_a_tol_below_round_off_ends_the_branch_with_round_off_past_the_fold():
+    """tol = 1e-15 asks the points to lie within 1e-15 a of the branch: near the fold the steps
+    keep it, on the upper branch Newton's corrections stall higher (round-off, 1e-14 and
+    more): the branch ends there, says so, and keeps its fold, located to 1e-12 of the
+    direct solve (the fold's lam is round-off-limited by the direct solve as well)."""
+    n = 63
+    branch = jaxanm.continuation(bratu(n), np.zeros(n), 0.0, rows(n, "unscaled"), max_steps=200, tol=1e-15)
+    print(f"\n{branch.a.size} steps: {branch.message}")
+    assert branch.stopped == "round_off" and "round-off" in branch.message and "larger tol" in branch.message
+    (fold,) = branch.events_of("fold")
+    assert abs(fold.lam - discrete_fold(n)) < 1e-12 * discrete_fold(n)
+    assert branch.lam[-1] < fold.lam and branch.u[-1, n // 2] > fold.u[n // 2]
+
+
+@pytest.mark.parametrize("c", [2.0**-40, 2.0**40])
+def test_tiny_and_huge_states_follow_the_same_branch_when_scaled(c):
+    """The unknowns multiplied by c = 2^-40 or 2^40 (exact in binary) with ``scale=c``: the
+    scaled problem is the same, so the walk must be the same, step for step (no absolute
+    threshold in the step control, the round-off judgement or the fold detection)."""
+    n = 15
+    reference = jaxanm.continuation(bratu(n), np.zeros(n), 0.0, rows(n, "unscaled"), max_steps=40)
+    branch = jaxanm.continuation(bratu(n), np.zeros(n), 0.0, rows(n, "unscaled", c), max_steps=40, scale=c)
+    assert branch.a.size == reference.a.size and branch.stopped == reference.stopped
+    np.testing.assert_allclose(branch.u / c, reference.u, rtol=1e-12, atol=1e-12)
+    assert [e.lam for e in branch.events] == pytest.approx([e.lam for e in reference.events], rel=1e-12)
