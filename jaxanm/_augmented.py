@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._factorization import counted_solve
-from .bordered import ExtendedSystem, bordered_matrix, joint_function
+from .bordered import ExtendedSystem, bordered_matrix, joint_function, release
 
 MAX_ITERATIONS = 12
 """Newton iterations allowed to locate a fold or a branch point."""
@@ -98,12 +98,13 @@ def locate_fold(system: ExtendedSystem, U, phi, *, step: int) -> Located:
     for iteration in range(1, MAX_ITERATIONS + 1):
         r, jac, dlam = system.tangent_parts(U, step=step)
         M = bordered_matrix(jac, b[:, None], c[None, :], corner=np.zeros((1, 1)))
-        fact = system.factorise(M, step=step, lam=U[-1])
+        fact = system.factorise(M, step=step, lam=U[-1], aside=True)
         column = np.append(dlam - b, 0.0)  # the Newton matrix's last column minus M's
         Z = np.asarray(counted_solve(fact, np.column_stack([column, last]), st))
         v, g = Z[:n, 1], Z[n, 1]
         y = np.asarray(counted_solve(fact, -np.append(r, g), st))
-        w = np.asarray(counted_solve(system.factorise(_transpose(M), step=step, lam=U[-1]), last, st))[:n]
+        release(fact)
+        w = _left_solution(system, M, last, step, U[-1])[:n]
         row = -hessian_row(system, U, np.append(v, 0.0), w) - np.append(c, 0.0)  # last row minus M's
         dU = woodbury(Z, np.column_stack([last, row]), y)
         U, size = U + dU, system.norm(dU)
@@ -128,11 +129,12 @@ def locate_branch_point(system: ExtendedSystem, U, t, phi, *, step: int) -> Loca
         r, jac, dlam = system.tangent_parts(U, step=step)
         corner = np.column_stack([C[n], np.zeros(2)])
         M = bordered_matrix(jac, np.column_stack([dlam, b]), C[:n].T, corner=corner)
-        fact = system.factorise(M, step=step, lam=U[-1])
+        fact = system.factorise(M, step=step, lam=U[-1], aside=True)
         Z = np.asarray(counted_solve(fact, units[:, :2], st))
         V, g = Z[: n + 1], Z[n + 1]
         y = np.asarray(counted_solve(fact, -np.concatenate([r + mu * b, g]), st))
-        w = np.asarray(counted_solve(system.factorise(_transpose(M), step=step, lam=U[-1]), units[:, 2], st))[:n]
+        release(fact)
+        w = _left_solution(system, M, units[:, 2], step, U[-1])[:n]
         rows = np.array([-hessian_row(system, U, V[:, j], w) for j in range(2)]) - C.T  # minus M's rows
         dX = woodbury(Z, np.column_stack([rows, np.zeros(2)]).T, y)
         U, mu, size = U + dX[: n + 1], mu + dX[n + 1], system.norm(dX[: n + 1])
@@ -143,9 +145,13 @@ def locate_branch_point(system: ExtendedSystem, U, t, phi, *, step: int) -> Loca
     return Located(U, C, b, MAX_ITERATIONS, False, size)
 
 
-def _transpose(M):
-    """``M^T`` in ``M``'s format (CSC or dense)."""
-    return M.T.tocsc() if hasattr(M, "tocsc") else np.ascontiguousarray(M.T)
+def _left_solution(system: ExtendedSystem, M, rhs, step: int, lam: float) -> np.ndarray:
+    """``M^-T rhs``: ``M^T`` (in M's format, CSC or dense) factorised aside, counted, released."""
+    transposed = M.T.tocsc() if hasattr(M, "tocsc") else np.ascontiguousarray(M.T)
+    fact = system.factorise(transposed, step=step, lam=lam, aside=True)
+    x = np.asarray(counted_solve(fact, rhs, system.stats))
+    release(fact)
+    return x
 
 
 def _orthonormal(vectors, scale) -> np.ndarray:

@@ -280,28 +280,34 @@ class ExtendedSystem:
                                       residual_norm=r_norm, code="non_finite")
         return r, self._problem.tangent(U[:-1], None, np.float64(U[-1]), None, self.params), dlam
 
-    def factorise(self, matrix, *, step: int, lam: float):
+    def factorise(self, matrix, *, step: int, lam: float, aside: bool = False):
         """``matrix`` factorised through the system's hook, counted; the factors made before
-        are released first (one LU alive).  :class:`ContinuationFailure` (``"singular"``, or
-        ``"non_finite"`` for non-finite entries) when it cannot be factorised."""
-        if self._fact is not None and hasattr(self._fact, "release"):
-            self._fact.release()
+        are released first (one LU alive), unless ``aside``: factors made beside the walk's
+        (locating an event), which the caller releases (:func:`release`) when done.
+        :class:`ContinuationFailure` (``"singular"``, or ``"non_finite"`` for non-finite
+        entries) when it cannot be factorised."""
+        if not aside:
+            release(self._fact)
         try:
-            self._fact = self._factorize(matrix, self.stats)
+            fact = self._factorize(matrix, self.stats)
         except SingularMatrixError as exc:
             code = "non_finite" if "non-finite" in str(exc) else "singular"
             raise ContinuationFailure(f"the bordered matrix cannot be factorised ({exc})", step=step, lam=lam,
                                       code=code) from exc
-        return self._fact
+        if not aside:
+            self._fact = fact
+        return fact
 
-    def linearise(self, U, row, *, step: int) -> Linearisation:
+    def linearise(self, U, row, *, step: int, aside: bool = False) -> Linearisation:
         """R, R_u, R_lam at ``U``, the bordered matrix with ``row`` factorised
-        (:meth:`factorise`); :class:`ContinuationFailure` when R is not finite or B cannot be
-        factorised."""
+        (:meth:`factorise`, ``aside`` as there); :class:`ContinuationFailure` when R is not
+        finite or B cannot be factorised."""
         r, jac, dlam = self.tangent_parts(U, step=step)
-        fact = self.factorise(bordered_matrix(jac, dlam[:, None], row[None, :]), step=step, lam=U[-1])
+        fact = self.factorise(bordered_matrix(jac, dlam[:, None], row[None, :]), step=step, lam=U[-1], aside=aside)
         lin = Linearisation(U, r, jac, dlam, row, fact, self.stats)
         if not np.all(np.isfinite(lin.z)):
+            if aside:
+                release(fact)
             raise ContinuationFailure("the tangent is not finite (the bordered matrix is numerically singular)",
                                       step=step, lam=U[-1], residual_norm=float(np.max(np.abs(r))))
         return lin
@@ -319,6 +325,12 @@ class ExtendedSystem:
     def path(self, point, max_terms: int) -> "PathSeries":
         """The residual's series along a path from ``point`` (:class:`PathSeries`)."""
         return PathSeries(self, point, max_terms)
+
+
+def release(fact) -> None:
+    """Free a factorisation's LU (if it can: a hook's object may not)."""
+    if fact is not None and hasattr(fact, "release"):
+        fact.release()
 
 
 def bordered_matrix(top_left, right, bottom, corner=None):

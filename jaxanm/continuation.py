@@ -115,9 +115,10 @@ def continuation(residual: Callable, u0=None, lam0=None, params=None, *, lam_end
 
 
 START_RESIDUAL = 1e-6
-"""A ``start`` event must satisfy R = 0 to this fraction of the size of R's terms there: a branch
-point located on this problem does to round-off (1e-14 and below), another problem's (other
-params, another residual) misses by the size of its terms."""
+"""A ``start`` event must be a branch point of this problem: R and R_U times its null vectors
+vanish there to this fraction of what R_U makes of the scale (times the state's or the
+vectors' size in it).  A branch point located on this problem meets it to round-off (1e-14
+and below); another problem's point (other params, another residual) misses by O(1)."""
 
 
 def _inputs(residual, u0, lam0, params, start, *, lam_end, stop_at, max_steps, tol, scale, jacobian, sparsity,
@@ -165,15 +166,23 @@ def _begin(walk: Walk, system: ExtendedSystem, U0, start, direction: int, tol: f
 
 
 def _check_start_event(system: ExtendedSystem, U0, start: Event) -> np.ndarray:
-    """R at a start event, which must be a solution of this problem (:data:`START_RESIDUAL`)."""
+    """R at a ``start`` event, checked to be a branch point of this problem (:data:`START_RESIDUAL`):
+    R = 0, and R_U v = 0 for its null vectors v."""
     try:
         r, jac, dlam = system.tangent_parts(U0, step=0)
     except ContinuationFailure as failure:
         raise InputError(f"start: the residual is not finite at the event ({failure.reason})") from failure
-    terms = np.asarray(abs(jac) @ np.abs(U0[:-1])).ravel() + np.abs(dlam) * abs(U0[-1])
-    if not np.max(np.abs(r)) <= START_RESIDUAL * max(float(np.max(terms)), np.finfo(float).tiny):
-        raise InputError(f"start: the event is not a solution of this problem (|R|_inf = {np.max(np.abs(r)):.3g} "
-                         f"against terms of {np.max(terms):.3g}): it was found with another residual or params")
+    V = np.asarray(start.data.get("null_vectors", np.zeros((U0.size, 0))))
+    if V.shape != (U0.size, 2):
+        raise InputError(f"start: the event's null vectors have shape {V.shape}, not ({U0.size}, 2): it is another "
+                         "problem's, or its location did not converge")
+    unit = float(np.max(abs(jac) @ system.scale[:-1] + np.abs(dlam) * system.scale[-1]))  # R_U on the scale
+    sizes = np.max(np.abs(np.column_stack([U0, V]) / system.scale[:, None]), axis=0)
+    misses = np.max(np.abs(np.column_stack([r, jac @ V[:-1] + dlam[:, None] * V[-1]])), axis=0)
+    if not np.all(misses <= START_RESIDUAL * unit * np.maximum(sizes, [1.0, 0.0, 0.0])):
+        raise InputError(f"start: the event is not a branch point of this problem (R and R_U times its null vectors "
+                         f"miss zero by {np.max(misses / unit / np.maximum(sizes, 1e-300)):.2g} of R_U's size): it "
+                         "was found with another residual or params")
     return r
 
 

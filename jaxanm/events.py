@@ -10,10 +10,11 @@ in branch order (:attr:`jaxanm.Branch.events`).  The built-in detectors, chosen 
 of the user's.  A detector keeps its own state between calls (it sees the points in order).
 
 - ``"fold"`` (:class:`FoldDetector`): a root of ``d lam / d a`` of a step's series where lam
-  turns by more than the branch's accuracy (:func:`fold_roots`); lam is stationary there, so
-  the ANM's series gives it to round-off.  On a Newton branch, whose interpolant is only
-  cubic, the tangent's turn between the points decides, and the fold is polished by Newton on
-  its augmented system.
+  turns by more than the branch's accuracy (:func:`fold_roots`; on a Newton branch, whose
+  interpolant is only cubic, the tangent's turn between the points decides), polished by
+  Newton on the fold's augmented system (:mod:`jaxanm._augmented`): lam is stationary at a
+  fold, so the series' root gives it to about ``tol a`` already, and the polish to round-off
+  (and gives the left null vector).
 - ``"branch_point"`` (:class:`BranchPointDetector`): ``det B`` changes sign across a step that
   passes a simple branch point, and only there (its sign is read off the LU already made);
   the point is then located by Newton on its augmented system (:mod:`jaxanm._augmented`) and
@@ -30,7 +31,7 @@ import numpy as np
 
 from ._augmented import locate_branch_point, locate_fold
 from ._real_roots import real_roots, sign_changes
-from .bordered import ContinuationFailure, ExtendedSystem, Linearisation
+from .bordered import ContinuationFailure, ExtendedSystem, Linearisation, release
 from .switching import branch_tangents
 
 
@@ -57,11 +58,12 @@ class Event:
         What is particular to the kind (read-only; arrays are the event's own):
 
         - fold: ``"null_vector"`` (n,), the unit null vector of R_u (the tangent's u part);
-          ``"left_null_vector"`` (n,) when the fold was polished (Newton branches);
-          ``"located"``: ``"series"`` or ``"augmented"`` (Newton on the augmented system).
+          ``"left_null_vector"`` (n,) ``psi``, ``psi^T R_u = 0`` (when polished);
+          ``"located"``: ``"augmented"`` (polished by Newton on the augmented system) or
+          ``"series"`` (the root on the step's series, where the polish did not converge).
         - branch_point: ``"tangents"`` (2, n+1), the unit tangents of the branch followed and
-          of the bifurcated branch (the second one's largest entry positive: ``direction=+1``
-          of a switch follows it); ``"null_vectors"`` (n+1, 2), an orthonormal basis (scaled)
+          of the bifurcated branch (the second one's first entry of largest magnitude, scaled,
+          positive: ``direction=+1`` of a switch follows it); ``"null_vectors"`` (n+1, 2), an orthonormal basis (scaled)
           of R_U's null space; ``"left_null_vector"`` (n,), R_u's left null vector ``psi``;
           ``"abe"`` (2, 2), the algebraic bifurcation equation's coefficients
           ``psi^T R_UU[e_j, e_k]`` in that basis; ``"converged"``: whether Newton located it
@@ -178,41 +180,54 @@ def fold_roots(series, a: float, noise: float, ends_lam: tuple | None = None) ->
 
 
 class FoldDetector:
-    """Folds in lam (module docstring); ``polish``: locate them on the augmented system
-    (Newton branches) instead of taking the series' root."""
+    """Folds in lam (module docstring), each polished by Newton on its augmented system (from
+    the series' root: two factorisations per iteration, one or two iterations); ``series``:
+    whether the steps' series are the branch's own (the ANM's) or interpolants (Newton's,
+    where the tangent's turn between the points decides)."""
 
-    def __init__(self, system: ExtendedSystem, tol: float, polish: bool):
-        self.system, self.tol, self.polish = system, tol, polish
+    def __init__(self, system: ExtendedSystem, tol: float, series: bool):
+        self.system, self.tol, self.series = system, tol, series
         self.previous: np.ndarray | None = None
 
     def __call__(self, end: StepEnd) -> list:
         previous, self.previous, step = self.previous, end.tangent, end.step
         if previous is None or step is None:
             return []
-        # the branch's accuracy in lam: Newton's points to tol, the ANM's series to tol a (CHECK_LIMIT's leeway)
-        noise = 10 * self.tol * (1.0 if self.polish else step.a) * self.system.scale[-1]
-        ends = (previous[-1], end.tangent[-1]) if self.polish else None
+        # the branch's accuracy in lam: the ANM's series to tol a, Newton's points to tol (CHECK_LIMIT's leeway)
+        noise = 10 * self.tol * (step.a if self.series else 1.0) * self.system.scale[-1]
+        ends = None if self.series else (previous[-1], end.tangent[-1])
         return [self._event(end.index, step, root) for root in fold_roots(step.series, step.a, noise, ends)]
 
     def _event(self, index: int, step: StepSeries, root: float) -> Event:
+        system = self.system
         U, t = step.at(root), step.derivative(root)
-        t = t / self.system.norm(t)
+        t = t / system.norm(t)
         data: dict = {"null_vector": t[:-1] / np.linalg.norm(t[:-1]), "located": "series"}
-        if self.polish:
-            try:
-                found = locate_fold(self.system, U, t[:-1], step=index)
-            except ContinuationFailure:
-                found = None
-            if found is not None and found.converged:
-                U = found.U
-                data.update(null_vector=found.null[:-1, 0], left_null_vector=found.psi, located="augmented")
+        try:
+            found = locate_fold(system, U, t[:-1], step=index)
+        except ContinuationFailure:
+            found = None
+        first = step.series[0] / system.norm(step.series[0])
+        if found is not None and found.converged and abs(system.dot(found.U - U, first)) <= 0.01 * step.a:
+            U = found.U
+            data.update(null_vector=found.null[:-1, 0], left_null_vector=found.psi, located="augmented")
         return Event("fold", float(U[-1]), U[:-1], index - 1, step.s + root, t, data)
 
 
+BRACKET_WIDTH = 1e-3
+"""A branch point is bracketed to this fraction of its step (by the sign of ``det B`` on the
+step's series) before Newton on its augmented system starts: close enough that Newton, whose
+basin is the distance to the next singularity, converges (a guess 5 units of lam off on a
+step of 17 was measured to diverge)."""
+
+
 class BranchPointDetector:
-    """Simple branch points (module docstring): the sign of ``det B`` at every point, and a
-    test function ``1 / (c . B^-1 b)`` (fixed random b, c), which vanishes linearly at the
-    branch point, to place Newton's first guess in the step by linear interpolation."""
+    """Simple branch points (module docstring): the sign of ``det B`` at every point; a step
+    across which it changes is narrowed down on its series (the sign at a point inside, by a
+    factorisation there) to :data:`BRACKET_WIDTH` of its length, each point chosen by the
+    secant of a test function ``1 / (c . B^-1 b)`` (fixed random b, c: it vanishes linearly at
+    the branch point), or halfway when the secant does not halve the bracket; then Newton on
+    the augmented system locates it."""
 
     def __init__(self, system: ExtendedSystem):
         self.system = system
@@ -220,38 +235,66 @@ class BranchPointDetector:
         self.b, self.c = rng.standard_normal(system.n + 1), rng.standard_normal(system.n + 1)
         self.previous: tuple | None = None
 
+    def _test(self, lin: Linearisation) -> float:
+        return 1.0 / float(self.c @ lin.solve(self.b[:-1], self.b[-1]))
+
     def __call__(self, end: StepEnd) -> list:
         lin = end.linearisation
         sign = None if lin is None else lin.determinant_sign()
         if lin is None or sign is None:
             self.previous = None
             return []
-        test = 1.0 / float(self.c @ lin.solve(self.b[:-1], self.b[-1]))
-        previous, self.previous, step = self.previous, (sign, test), end.step
+        previous, self.previous, step = self.previous, (sign, self._test(lin)), end.step
         if previous is None or previous[0] == sign or step is None:
             return []
-        fraction = previous[1] / (previous[1] - test) if np.isfinite(previous[1] - test) else 0.5
-        return [self._event(end.index, step, float(np.clip(fraction, 0.0, 1.0)) * step.a, lin)]
+        try:
+            a, inside = self._narrowed(end.index, step, (0.0, *previous), (step.a, sign, self.previous[1]), lin)
+            try:
+                return [self._event(end.index, step, a, inside)]
+            finally:
+                if inside is not lin:
+                    release(inside.fact)
+        except ContinuationFailure:
+            return [Event("branch_point", float(end.point[-1]), end.point[:-1], end.index - 1, end.s, end.tangent,
+                          {"converged": False})]
+
+    def _narrowed(self, index: int, step: StepSeries, lo: tuple, hi: tuple, lin: Linearisation):
+        """The bracket ``(a, det sign, test)`` at both ends narrowed to :data:`BRACKET_WIDTH` of
+        the step: ``(a inside, linearisation there)``."""
+        system, width, held = self.system, hi[0] - lo[0], lin
+        while hi[0] - lo[0] > BRACKET_WIDTH * step.a:
+            secant = lo[0] - lo[2] * (hi[0] - lo[0]) / (hi[2] - lo[2]) if np.isfinite(hi[2] - lo[2]) else np.nan
+            inside = lo[0] + 0.05 * (hi[0] - lo[0]) < secant < hi[0] - 0.05 * (hi[0] - lo[0])
+            a = secant if inside and hi[0] - lo[0] < 0.5 * width else 0.5 * (lo[0] + hi[0])
+            width = hi[0] - lo[0]
+            t = step.derivative(a)
+            if lin is not held:
+                release(lin.fact)
+            lin = system.linearise(step.at(a), system.tangent_row(t / system.norm(t)), step=index, aside=True)
+            sign = lin.determinant_sign()
+            middle = (a, sign, self._test(lin))
+            lo, hi = (middle, hi) if sign == lo[1] else (lo, middle)
+        return 0.5 * (lo[0] + hi[0]), lin
 
     def _event(self, index: int, step: StepSeries, a: float, lin: Linearisation) -> Event:
         system = self.system
         U, t = step.at(a), step.derivative(a)
         t = t / system.norm(t)
         phi = lin.constrained(self.b[:-1], system.tangent_row(t))  # inverse iteration: B's near-null direction
-        try:
-            found = locate_branch_point(system, U, t, phi / system.norm(phi), step=index)
-        except ContinuationFailure:
+        found = locate_branch_point(system, U, t, phi / system.norm(phi), step=index)
+        first = step.series[0] / system.norm(step.series[0])  # the step's parameter is <U - U_s, U_1>
+        along = system.dot(found.U - step.start, first)
+        if not (found.converged and -0.01 * step.a <= along <= 1.01 * step.a):  # Newton left the step
             return Event("branch_point", float(U[-1]), U[:-1], index - 1, step.s + a, t, {"converged": False})
         tangents, abe = branch_tangents(system, found, t)
-        first = step.series[0] / system.norm(step.series[0])  # the step's parameter is <U - U_s, U_1>
-        s = step.s + float(np.clip(system.dot(found.U - step.start, first), 0.0, step.a))
-        return Event("branch_point", float(found.U[-1]), found.U[:-1], index - 1, s, tangents[0],
+        return Event("branch_point", float(found.U[-1]), found.U[:-1], index - 1,
+                     step.s + float(np.clip(along, 0.0, step.a)), tangents[0],
                      {"tangents": tangents, "null_vectors": found.null, "left_null_vector": found.psi, "abe": abe,
-                      "converged": found.converged})
+                      "converged": True})
 
 
 DETECTORS: dict[str, Callable[..., Callable[[StepEnd], list]]] = {
-    "fold": lambda system, tol, method: FoldDetector(system, tol, polish=(method == "newton")),
+    "fold": lambda system, tol, method: FoldDetector(system, tol, series=(method == "anm")),
     "branch_point": lambda system, tol, method: BranchPointDetector(system),
 }
 """The built-in detectors by event kind: ``make(system, tol, method) -> detector``, a callable

@@ -36,7 +36,7 @@ SWITCH_ATTEMPTS = 6
 def branch_tangents(system: ExtendedSystem, found: Located, along) -> tuple[np.ndarray, np.ndarray]:
     """The unit tangents (scaled) of the two branches through a located branch point,
     ``(2, n+1)``: the one nearer ``along`` first (oriented with it), the bifurcated one second
-    (its largest scaled entry positive); and the ABE's matrix Q (2, 2) in ``found.null``."""
+    (:func:`oriented` in the scaled unknowns); and the ABE's matrix Q (2, 2) in ``found.null``."""
     V, psi = found.null, found.psi
     rows = np.array([hessian_row(system, found.U, V[:, j], psi) for j in range(2)])
     Q = rows @ V
@@ -52,9 +52,14 @@ def branch_tangents(system: ExtendedSystem, found: Located, along) -> tuple[np.n
     first = int(np.argmax([abs(system.dot(d, along)) for d in directions]))
     t1, t2 = directions[first], directions[1 - first]
     t1 = t1 if system.dot(t1, along) > 0 else -t1
-    scaled = t2 / system.scale
-    t2 = t2 if scaled[np.argmax(np.abs(scaled))] > 0 else -t2
-    return np.stack([t1, t2]), Q
+    return np.stack([t1, oriented(t2 / system.scale) * system.scale]), Q
+
+
+def oriented(t) -> np.ndarray:
+    """``t`` or ``-t``: the one whose first entry of largest magnitude (within 1 %, so that
+    round-off does not choose between equal entries of a symmetric mode) is positive."""
+    first = int(np.argmax(np.abs(t) >= 0.99 * np.max(np.abs(t))))
+    return t if t[first] > 0 else -t
 
 
 def switched_start(system: ExtendedSystem, event, direction: int, tol: float):
