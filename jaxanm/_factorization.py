@@ -160,12 +160,12 @@ class Factorization:
         if self._solve is None:
             self._solve, self._lu = self._factors(self.matrix)
 
-    def determinant_sign(self) -> float:
-        """The sign of ``det K*``, +1.0 or -1.0, read off the factors (made again if released):
-        the signs of U's diagonal times the parities of the row and column permutations.  Path
-        following watches it for branch points (:mod:`jaxanm.events`)."""
+    def slogdet(self) -> tuple[float, float]:
+        """``(sign, log|det K*|)`` read off the factors (made again if released), as
+        ``numpy.linalg.slogdet``: U's diagonal and the parities of the row and column
+        permutations.  Path following watches the sign for branch points (:mod:`jaxanm.events`)."""
         self.refactor()
-        return determinant_sign(self._lu)
+        return slogdet(self._lu)
 
     def solve(self, rhs) -> np.ndarray:
         """Solve ``K* x = rhs`` with the stored factors (host, float64); ``rhs`` of shape (n,)
@@ -188,17 +188,18 @@ def permutation_parity(perm) -> int:
     return -1 if (perm.size - cycles) % 2 else 1
 
 
-def determinant_sign(lu) -> float:
-    """The sign of the determinant of the matrix whose LU factors ``lu`` are: a dense
-    ``lu_factor`` pair, a SuperLU object (``Pr A Pc = L U``, L unit lower) or a
-    :class:`NestedDissectionLU` (``P A P^T``, whose determinant is ``A``'s)."""
+def slogdet(lu) -> tuple[float, float]:
+    """``(sign, log|det|)`` of the matrix whose LU factors ``lu`` are: a dense ``lu_factor``
+    pair, a SuperLU object (``Pr A Pc = L U``, L unit lower) or a :class:`NestedDissectionLU`
+    (``P A P^T``, whose determinant is ``A``'s)."""
     if isinstance(lu, tuple):
-        factors, pivots = lu
-        swaps = int(np.count_nonzero(pivots != np.arange(pivots.size)))
-        return float(np.prod(np.sign(np.diag(factors))) * (-1) ** swaps)
-    inner = lu._lu if isinstance(lu, NestedDissectionLU) else lu
-    sign = np.prod(np.sign(inner.U.diagonal()))
-    return float(sign * permutation_parity(inner.perm_r) * permutation_parity(inner.perm_c))
+        diagonal, pivots = np.diag(lu[0]), lu[1]
+        parity = (-1) ** int(np.count_nonzero(pivots != np.arange(pivots.size)))
+    else:
+        inner = lu._lu if isinstance(lu, NestedDissectionLU) else lu
+        diagonal = inner.U.diagonal()
+        parity = permutation_parity(inner.perm_r) * permutation_parity(inner.perm_c)
+    return float(parity * np.prod(np.sign(diagonal))), float(np.sum(np.log(np.abs(diagonal))))
 
 
 def factorize(matrix, stats: Stats) -> Factorization:

@@ -204,13 +204,13 @@ class Linearisation:
         jac = abs(self.jacobian)
         return np.asarray(jac @ np.abs(self.point[:-1])).ravel() + np.abs(self.dlam) * abs(self.point[-1])
 
-    def determinant_sign(self) -> float | None:
-        """The sign of ``det B`` from the factors (None if the factorisation object cannot
-        tell: a ``factorize`` hook's without ``determinant_sign()``).  With ``z`` oriented by
-        the border (``row . z = 1``) it is the sign of ``det [R_U; z^T]``, which changes along a
-        branch only where R_U loses rank: at branch points, not at folds."""
-        sign = getattr(self.fact, "determinant_sign", None)
-        return None if sign is None else float(sign())
+    def slogdet(self) -> tuple[float, float] | None:
+        """``(sign, log|det B|)`` from the factors (None if the factorisation object cannot
+        tell: a ``factorize`` hook's without ``slogdet()``).  With ``z`` oriented by the border
+        (``row . z = 1``) the sign is that of ``det [R_U; z^T]``, which changes along a branch
+        only where R_U loses rank: at branch points, not at folds."""
+        slogdet = getattr(self.fact, "slogdet", None)
+        return None if slogdet is None else slogdet()
 
 
 class ExtendedSystem:

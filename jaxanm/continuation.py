@@ -85,7 +85,7 @@ def continuation(residual: Callable, u0=None, lam0=None, params=None, *, lam_end
         How bordered matrices (dense or scipy CSC) are factorised; default
         :func:`jaxanm.factorize`.  Solves must be exact (a hook reusing factors iterates to
         that accuracy and counts in ``stats``); ``release()``, if there, is called before the
-        next factorisation; without ``determinant_sign()`` no branch points are detected.
+        next factorisation; without ``slogdet()`` no branch points are detected.
     events : sequence of str
         The events to detect (keys of :data:`jaxanm.events.DETECTORS`: ``"fold"``,
         ``"branch_point"``); ``()`` for none.

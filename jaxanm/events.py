@@ -126,7 +126,7 @@ class StepEnd:
         The bordered matrix ``[[R_u, R_lam], [w^T]]`` factorised at the point (or at Newton's
         last iterate, within tol of it): ``solve``, ``constrained``, ``z`` (its kernel
         vector), ``jacobian`` (R_u, dense or scipy sparse), ``dlam``, ``residual``,
-        ``determinant_sign()``.  Solving with it costs no factorisation (until another one is
+        ``slogdet()``.  Solving with it costs no factorisation (until another one is
         made: the walk keeps one LU alive, so a detector that factorises must expect its
         solves to refactorise, counted).  None at a point where the matrix is singular (the
         branch point a switched branch starts from).
@@ -223,32 +223,27 @@ step of 17 was measured to diverge)."""
 
 class BranchPointDetector:
     """Simple branch points (module docstring): the sign of ``det B`` at every point; a step
-    across which it changes is narrowed down on its series (the sign at a point inside, by a
+    across which it changes is narrowed down on its series (``det B`` at a point inside, by a
     factorisation there) to :data:`BRACKET_WIDTH` of its length, each point chosen by the
-    secant of a test function ``1 / (c . B^-1 b)`` (fixed random b, c: it vanishes linearly at
-    the branch point), or halfway when the secant does not halve the bracket; then Newton on
-    the augmented system locates it."""
+    secant of ``det B`` (smooth, with a simple zero at the branch point), or halfway when the
+    secant did not halve the bracket; then Newton on the augmented system locates it."""
 
     def __init__(self, system: ExtendedSystem):
         self.system = system
-        rng = np.random.default_rng(system.n + 1)
-        self.b, self.c = rng.standard_normal(system.n + 1), rng.standard_normal(system.n + 1)
+        self.b = np.random.default_rng(system.n + 1).standard_normal(system.n)
         self.previous: tuple | None = None
-
-    def _test(self, lin: Linearisation) -> float:
-        return 1.0 / float(self.c @ lin.solve(self.b[:-1], self.b[-1]))
 
     def __call__(self, end: StepEnd) -> list:
         lin = end.linearisation
-        sign = None if lin is None else lin.determinant_sign()
-        if lin is None or sign is None:
+        det = None if lin is None else lin.slogdet()
+        if lin is None or det is None:
             self.previous = None
             return []
-        previous, self.previous, step = self.previous, (sign, self._test(lin)), end.step
-        if previous is None or previous[0] == sign or step is None:
+        previous, self.previous, step = self.previous, det, end.step
+        if previous is None or previous[0] == det[0] or step is None:
             return []
         try:
-            a, inside = self._narrowed(end.index, step, (0.0, *previous), (step.a, sign, self.previous[1]), lin)
+            a, inside = self._narrowed(end.index, step, (0.0, *previous), (step.a, *det), lin)
             try:
                 return [self._event(end.index, step, a, inside)]
             finally:
@@ -259,28 +254,32 @@ class BranchPointDetector:
                           {"converged": False})]
 
     def _narrowed(self, index: int, step: StepSeries, lo: tuple, hi: tuple, lin: Linearisation):
-        """The bracket ``(a, det sign, test)`` at both ends narrowed to :data:`BRACKET_WIDTH` of
-        the step: ``(a inside, linearisation there)``."""
-        system, width, held = self.system, hi[0] - lo[0], lin
+        """The bracket ``(a, sign, log|det B|)`` at both ends narrowed to :data:`BRACKET_WIDTH`
+        of the step, or until the secant's guesses agree to that: ``(a inside, linearisation
+        there)``."""
+        system, held, bisect, guess = self.system, lin, False, np.inf
         while hi[0] - lo[0] > BRACKET_WIDTH * step.a:
-            secant = lo[0] - lo[2] * (hi[0] - lo[0]) / (hi[2] - lo[2]) if np.isfinite(hi[2] - lo[2]) else np.nan
-            inside = lo[0] + 0.05 * (hi[0] - lo[0]) < secant < hi[0] - 0.05 * (hi[0] - lo[0])
-            a = secant if inside and hi[0] - lo[0] < 0.5 * width else 0.5 * (lo[0] + hi[0])
-            width = hi[0] - lo[0]
+            width, top = hi[0] - lo[0], max(lo[2], hi[2])
+            d_lo, d_hi = lo[1] * np.exp(lo[2] - top), hi[1] * np.exp(hi[2] - top)
+            secant = lo[0] - d_lo * width / (d_hi - d_lo)
+            if abs(secant - guess) <= BRACKET_WIDTH * step.a:
+                return secant, lin
+            a, guess = (lo[0] + 0.5 * width, np.inf) if bisect else (secant, secant)
             t = step.derivative(a)
             if lin is not held:
                 release(lin.fact)
             lin = system.linearise(step.at(a), system.tangent_row(t / system.norm(t)), step=index, aside=True)
-            sign = lin.determinant_sign()
-            middle = (a, sign, self._test(lin))
-            lo, hi = (middle, hi) if sign == lo[1] else (lo, middle)
+            sign, logdet = lin.slogdet() or (np.nan, np.nan)  # the walk's factors tell it: so do these
+            middle = (a, sign, logdet)
+            lo, hi = (middle, hi) if middle[1] == lo[1] else (lo, middle)
+            bisect = hi[0] - lo[0] > 0.5 * width  # the secant did not halve the bracket: halve it next
         return 0.5 * (lo[0] + hi[0]), lin
 
     def _event(self, index: int, step: StepSeries, a: float, lin: Linearisation) -> Event:
         system = self.system
         U, t = step.at(a), step.derivative(a)
         t = t / system.norm(t)
-        phi = lin.constrained(self.b[:-1], system.tangent_row(t))  # inverse iteration: B's near-null direction
+        phi = lin.constrained(self.b, system.tangent_row(t))  # inverse iteration: B's near-null direction
         found = locate_branch_point(system, U, t, phi / system.norm(phi), step=index)
         first = step.series[0] / system.norm(step.series[0])  # the step's parameter is <U - U_s, U_1>
         along = system.dot(found.U - step.start, first)

@@ -56,7 +56,7 @@ def straight(n: int) -> jaxanm.Branch:
     in steps of at most 5 (its series is exact; the critical loads are 19 or more apart)."""
     loads = critical_loads(n)
     return jaxanm.continuation(elastica(n), np.zeros(n), 0.0, {}, lam_end=0.5 * (loads[2] + loads[3]),
-                               max_step=5.0, max_steps=100)
+                               max_step=5.0, max_steps=100, order=8)  # order 8: fewer jets to compile than 15
 
 
 def bent(n: int, alpha: float) -> jaxanm.Branch:
