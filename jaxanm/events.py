@@ -207,8 +207,9 @@ class FoldDetector:
             found = locate_fold(system, U, t[:-1], step=index)
         except ContinuationFailure:
             found = None
-        first = step.series[0] / system.norm(step.series[0])
-        if found is not None and found.converged and abs(system.dot(found.U - U, first)) <= 0.01 * step.a:
+        first = step.series[0] / system.norm(step.series[0])  # the step's parameter is <U - U_s, U_1>
+        inside = found is not None and -0.01 * step.a <= system.dot(found.U - step.start, first) <= 1.01 * step.a
+        if found is not None and found.converged and inside:
             U = found.U
             data.update(null_vector=found.null[:-1, 0], left_null_vector=found.psi, located="augmented")
         return Event("fold", float(U[-1]), U[:-1], index - 1, step.s + root, t, data)

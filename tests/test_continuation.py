@@ -268,15 +268,15 @@ def test_anm_and_newton_agree_on_the_branch(record_property):
               f"(steps {newton.a.size}, iterations {newton.stats.newton_iterations})")
 
 
-def test_newton_branch_limit_points_from_its_hermite_interpolant():
-    """Newton's branch interpolates its points and tangents by chord-length cubics in each step:
-    its limit loads are as good as that interpolation over the step that holds them.  The
-    step-length control lets the steps grow to 0.27 (scaled) on the way to the second limit
-    point, where the branch turns by about 70 degrees within one step: 0.6 % off there (0.04 %
-    at the first); we allow 1 %.  The ANM's limit points come from its own series (1e-9 P*,
-    the test above)."""
+def test_newton_branch_limit_points_polished_on_the_augmented_system():
+    """Newton's branch interpolates its points and tangents by chord-length cubics in each step,
+    only 0.04-0.6 % accurate at the folds (the steps grow to 0.27, scaled, and the branch turns
+    by about 70 degrees within one); a fold event is polished from there by Newton on the
+    fold's augmented system: both limit loads to 1e-9 P* (round-off of lam at a stationary
+    point), as the ANM's."""
     folds = truss_branch("newton").limit_points()
-    np.testing.assert_allclose(folds.lam, [P_STAR, -P_STAR], rtol=0, atol=1e-2 * P_STAR)
+    np.testing.assert_allclose(folds.lam, [P_STAR, -P_STAR], rtol=0, atol=1e-9 * P_STAR)
+    assert all(e.data["located"] == "augmented" for e in truss_branch("newton").events_of("fold"))
 
 
 def test_a_start_outside_the_residual_s_domain_is_bad_input_not_nan():
