@@ -15,10 +15,12 @@ R_U = [R_u, R_lam] loses rank: a regular solution of ``[R(U) + mu b; g_1(U); g_2
 
 so that at the solution ``v_1, v_2`` span R_U's null space and the left solution ``w`` of the
 transposed system is its left null vector.  The derivatives of ``g`` are ``-w^T R_UU[., v]``,
-a reverse-over-forward derivative of the residual (:func:`second_derivative`).  Each Newton
-iteration factorises the bordered matrix and its transpose (counted in the system's
-``stats``); the Newton matrix differs from the bordered one by a rank-2 term, solved by the
-Sherman-Morrison-Woodbury formula with the same factors.
+a reverse-over-forward derivative of the residual (:func:`second_derivative`).
+
+Everything is done in the scaled unknowns ``y = U / scale`` (so that a problem and its
+rescaling locate alike), with the border ``b`` as large as R_u's entries: each Newton
+iteration factorises the bordered matrix, its transpose and the Newton matrix (beside the
+walk's factors, counted in the system's ``stats``).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import typing
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse
 
 from ._factorization import counted_solve
 from .bordered import ExtendedSystem, bordered_matrix, joint_function, release
@@ -72,89 +75,100 @@ class Located(typing.NamedTuple):
     last_step: float
 
 
-def woodbury(Z, V, y) -> np.ndarray:
-    """``(M + U V^T)^-1 r`` from ``y = M^-1 r`` and ``Z = M^-1 U`` (Sherman-Morrison-Woodbury:
-    a rank-k change of a factorised matrix costs k solves and a k x k system)."""
-    small = np.eye(Z.shape[1]) + V.T @ Z
-    return y - Z @ np.linalg.solve(small, V.T @ y)
+def _converged(size: float, previous: float) -> bool:
+    """Newton's step (scaled) is at round-off of the scale, or it stalls (no longer halves)
+    after coming within sqrt(eps) of it, where quadratic convergence had reached round-off."""
+    stalled = size > 0.5 * previous and previous <= np.sqrt(np.finfo(float).eps)
+    return bool(size <= CONVERGED or stalled)
 
 
-def _converged(size: float, previous: float, U_norm: float) -> bool:
-    """Newton's step is at round-off of U, or it stalls (no longer halves) after coming within
-    sqrt(eps) of U, where quadratic convergence had already reached round-off."""
-    scale = max(U_norm, 1.0)
-    stalled = size > 0.5 * previous and previous <= np.sqrt(np.finfo(float).eps) * scale
-    return bool(size <= CONVERGED * scale or stalled)
+class _Scaled(typing.NamedTuple):
+    """R and its derivatives at U in the scaled unknowns y = U / scale: ``r``, ``ju`` (R_u
+    times the u scales, dense or CSC), ``jl`` (R_lam times lam's scale), the size of their
+    entries ``big`` (the borders' size)."""
+
+    r: np.ndarray
+    ju: object
+    jl: np.ndarray
+    big: float
+
+
+def _scaled(system: ExtendedSystem, U, step: int) -> _Scaled:
+    r, jac, dlam = system.tangent_parts(U, step=step)
+    S = system.scale
+    ju = jac @ scipy.sparse.diags(S[:-1]) if scipy.sparse.issparse(jac) else jac * S[:-1]
+    ju = scipy.sparse.csc_matrix(ju) if scipy.sparse.issparse(jac) else ju
+    big = float(abs(ju).max()) if scipy.sparse.issparse(ju) else float(np.max(np.abs(ju)))
+    return _Scaled(r, ju, dlam * S[-1], max(big, float(np.max(np.abs(dlam * S[-1]))), np.finfo(float).tiny))
+
+
+def _solve(system: ExtendedSystem, matrix, rhs, *, step: int, lam: float) -> np.ndarray:
+    """``matrix^-1 rhs`` through a factorisation made aside (counted) and released."""
+    fact = system.factorise(matrix, step=step, lam=lam, aside=True)
+    x = np.asarray(counted_solve(fact, rhs, system.stats))
+    release(fact)
+    return x
+
+
+def _transpose(M):
+    return M.T.tocsc() if hasattr(M, "tocsc") else np.ascontiguousarray(M.T)
+
+
+def _hessian_rows(system: ExtendedSystem, U, vectors, w) -> np.ndarray:
+    """``w^T R_yy[v, .]`` for each scaled column v of ``vectors`` (rows, in y)."""
+    S = system.scale
+    return np.array([hessian_row(system, U, S * v, w) * S for v in np.atleast_2d(vectors.T)])
 
 
 def locate_fold(system: ExtendedSystem, U, phi, *, step: int) -> Located:
     """Newton on the fold's augmented system from ``U``, ``phi`` (n,) an approximate null
     vector of R_u (the u-part of the branch's tangent near the fold)."""
-    n, U, st = system.n, np.array(U, dtype=np.float64), system.stats
-    b = c = phi / np.linalg.norm(phi)
-    last = np.zeros(n + 1)
-    last[-1] = 1.0
-    previous, size, w, v = np.inf, np.inf, b, c
+    n, S, U = system.n, system.scale, np.array(U, dtype=np.float64)
+    c = phi / S[:-1]
+    c = psi = c / np.linalg.norm(c)  # psi: the left null vector's guess, phi's for a symmetric R_u
+    last = np.eye(n + 1)[-1]
+    previous = size = np.inf
     for iteration in range(1, MAX_ITERATIONS + 1):
-        r, jac, dlam = system.tangent_parts(U, step=step)
-        M = bordered_matrix(jac, b[:, None], c[None, :], corner=np.zeros((1, 1)))
-        fact = system.factorise(M, step=step, lam=U[-1], aside=True)
-        column = np.append(dlam - b, 0.0)  # the Newton matrix's last column minus M's
-        Z = np.asarray(counted_solve(fact, np.column_stack([column, last]), st))
-        v, g = Z[:n, 1], Z[n, 1]
-        y = np.asarray(counted_solve(fact, -np.append(r, g), st))
-        release(fact)
-        w = _left_solution(system, M, last, step, U[-1])[:n]
-        row = -hessian_row(system, U, np.append(v, 0.0), w) - np.append(c, 0.0)  # last row minus M's
-        dU = woodbury(Z, np.column_stack([last, row]), y)
-        U, size = U + dU, system.norm(dU)
-        b, c = w / np.linalg.norm(w), v / np.linalg.norm(v)
-        if _converged(size, previous, system.norm(U)):
-            return Located(U, np.append(c, 0.0)[:, None], b, iteration, True, size)
+        at = _scaled(system, U, step)
+        M = bordered_matrix(at.ju, psi[:, None] * at.big, c[None, :], corner=np.zeros((1, 1)))
+        vg = _solve(system, M, last, step=step, lam=U[-1])
+        w = _solve(system, _transpose(M), last, step=step, lam=U[-1])[:n]
+        row = -_hessian_rows(system, U, np.append(vg[:n], 0.0)[:, None], w)[0]
+        newton = bordered_matrix(at.ju, at.jl[:, None], row[None, :])
+        dy = _solve(system, newton, -np.append(at.r, vg[n]), step=step, lam=U[-1])
+        U, size = U + S * dy, float(np.linalg.norm(dy))
+        psi, c = w / np.linalg.norm(w), vg[:n] / np.linalg.norm(vg[:n])
+        if _converged(size, previous):
+            return Located(U, np.append(S[:-1] * c, 0.0)[:, None], psi, iteration, True, size)
         previous = size
-    return Located(U, np.append(c, 0.0)[:, None], b, MAX_ITERATIONS, False, size)
+    return Located(U, np.append(S[:-1] * c, 0.0)[:, None], psi, MAX_ITERATIONS, False, size)
 
 
 def locate_branch_point(system: ExtendedSystem, U, t, phi, *, step: int) -> Located:
     """Newton on the branch point's augmented system from ``U``, with ``t`` (the branch's
     tangent) and ``phi`` (an approximate second null vector of R_U, (n+1,)) spanning the
     guess of R_U's null space."""
-    n, U, mu, st = system.n, np.array(U, dtype=np.float64), 0.0, system.stats
-    C = _orthonormal(np.column_stack([t, phi]), system.scale)
+    n, S, U, mu = system.n, system.scale, np.array(U, dtype=np.float64), 0.0
+    C = np.linalg.qr(np.column_stack([t, phi]) / S[:, None])[0]  # orthonormal, scaled
     b = phi[:n] / np.linalg.norm(phi[:n])
     units = np.zeros((n + 2, 3))
     units[n:, :2], units[n + 1, 2] = np.eye(2), 1.0
-    previous, size = np.inf, np.inf
+    previous = size = np.inf
     for iteration in range(1, MAX_ITERATIONS + 1):
-        r, jac, dlam = system.tangent_parts(U, step=step)
-        corner = np.column_stack([C[n], np.zeros(2)])
-        M = bordered_matrix(jac, np.column_stack([dlam, b]), C[:n].T, corner=corner)
-        fact = system.factorise(M, step=step, lam=U[-1], aside=True)
-        Z = np.asarray(counted_solve(fact, units[:, :2], st))
+        at = _scaled(system, U, step)
+        border = b * at.big
+        M = bordered_matrix(at.ju, np.column_stack([at.jl, border]), C[:n].T,
+                            corner=np.column_stack([C[n], np.zeros(2)]))
+        Z = _solve(system, M, units[:, :2], step=step, lam=U[-1])
         V, g = Z[: n + 1], Z[n + 1]
-        y = np.asarray(counted_solve(fact, -np.concatenate([r + mu * b, g]), st))
-        release(fact)
-        w = _left_solution(system, M, units[:, 2], step, U[-1])[:n]
-        rows = np.array([-hessian_row(system, U, V[:, j], w) for j in range(2)]) - C.T  # minus M's rows
-        dX = woodbury(Z, np.column_stack([rows, np.zeros(2)]).T, y)
-        U, mu, size = U + dX[: n + 1], mu + dX[n + 1], system.norm(dX[: n + 1])
-        b, C = w / np.linalg.norm(w), _orthonormal(V, system.scale)
-        if _converged(size, previous, system.norm(U)):
-            return Located(U, C, b, iteration, True, size)
+        w = _solve(system, _transpose(M), units[:, 2], step=step, lam=U[-1])[:n]
+        rows = -_hessian_rows(system, U, V, w)
+        newton = bordered_matrix(at.ju, np.column_stack([at.jl, border]), rows[:, :n],
+                                 corner=np.column_stack([rows[:, n], np.zeros(2)]))
+        dX = _solve(system, newton, -np.concatenate([at.r + mu * border, g]), step=step, lam=U[-1])
+        U, mu, size = U + S * dX[: n + 1], mu + dX[n + 1], float(np.linalg.norm(dX[: n + 1]))
+        b, C = w / np.linalg.norm(w), np.linalg.qr(V)[0]
+        if _converged(size, previous):
+            return Located(U, S[:, None] * C, b, iteration, True, size)
         previous = size
-    return Located(U, C, b, MAX_ITERATIONS, False, size)
-
-
-def _left_solution(system: ExtendedSystem, M, rhs, step: int, lam: float) -> np.ndarray:
-    """``M^-T rhs``: ``M^T`` (in M's format, CSC or dense) factorised aside, counted, released."""
-    transposed = M.T.tocsc() if hasattr(M, "tocsc") else np.ascontiguousarray(M.T)
-    fact = system.factorise(transposed, step=step, lam=lam, aside=True)
-    x = np.asarray(counted_solve(fact, rhs, system.stats))
-    release(fact)
-    return x
-
-
-def _orthonormal(vectors, scale) -> np.ndarray:
-    """The columns of ``vectors`` orthonormalised in the scaled inner product (their span)."""
-    q, _ = np.linalg.qr(vectors / scale[:, None])
-    return q * scale[:, None]
+    return Located(U, S[:, None] * C, b, MAX_ITERATIONS, False, size)

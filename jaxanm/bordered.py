@@ -426,14 +426,15 @@ def _not_settled(system, lin, constraint, size, target, step, iterations) -> Con
 
 def corrected_start(system: ExtendedSystem, U0, direction: int, tol: float):
     """The linearisation at the starting point, bordered by ``direction`` e_lam (its kernel
-    vector points towards ``direction`` lam), and the Newton iterations it took: ``u0`` is
+    vector points towards ``direction`` lam), its distance from the branch (Newton's last
+    correction) and the Newton iterations it took: ``u0`` is
     first brought onto the branch by Newton at fixed lam0 while its correction exceeds
     ``tol`` (scaled norm; :func:`settle`).  A start that cannot be used is the caller's to
     change: :class:`InputError` saying why."""
     row = system.axis_row(system.n, float(direction))
     try:
         lin = system.linearise(np.array(U0, dtype=np.float64), row, step=0)
-        lin, _, iterations = settle(system, lin, system.axis_row(system.n), tol, step=0)
+        lin, distance, iterations = settle(system, lin, system.axis_row(system.n), tol, step=0)
     except ContinuationFailure as failure:
         fix = {"non_finite": "the residual is not finite at (u0, lam0) or on Newton's way from it: give a point "
                              "inside its domain",
@@ -441,4 +442,4 @@ def corrected_start(system: ExtendedSystem, U0, direction: int, tol: float):
                            "beside it (or from a branch-point event with start=)"}
         raise InputError(f"u0 is not a usable starting point at lam0 = {U0[-1]:.8g}: {failure.reason}; "
                          + fix.get(failure.code, "give a point on the branch (a solution at lam0)")) from failure
-    return lin, iterations
+    return lin, distance, iterations

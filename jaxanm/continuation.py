@@ -149,20 +149,20 @@ def _begin(walk: Walk, system: ExtendedSystem, U0, start, direction: int, tol: f
     """The walk's first point (and, from a branch point, its first step): ``(linearisation,
     its distance from the branch)`` to go on from, or None when the walk already ended."""
     if start is None:
-        lin, iterations = corrected_start(system, U0, direction, tol)
+        lin, distance, iterations = corrected_start(system, U0, direction, tol)
         walk.start(lin.point, orient(system, lin), float(np.max(np.abs(lin.residual))), lin, iterations)
-        return lin, 0.0
+        return lin, distance
     r = _check_start_event(system, U0, start)
     walk.start(U0, direction * np.asarray(start.data["tangents"][1]), float(np.max(np.abs(r))), None)
     try:
-        _, _, lin, series, delta, iterations = switched_start(system, start, direction, tol)
+        lin, series, delta, distance, iterations = switched_start(system, start, direction, tol)
     except ContinuationFailure as failure:
         walk.fail(failure)
         return None
     padded = np.zeros((rows, system.n + 1))
     padded[:2] = series
-    walk.add(lin, orient(system, lin), delta, padded, correction=0.0, amax=delta, iterations=iterations)
-    return lin, 0.0
+    walk.add(lin, orient(system, lin), delta, padded, correction=distance, amax=delta, iterations=iterations)
+    return lin, distance
 
 
 def _check_start_event(system: ExtendedSystem, U0, start: Event) -> np.ndarray:

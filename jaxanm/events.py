@@ -81,6 +81,10 @@ class Event:
     def __post_init__(self):
         object.__setattr__(self, "data", types.MappingProxyType(dict(self.data)))
 
+    def __reduce__(self):
+        """Pickled with its data as a plain dict (a read-only view is not picklable)."""
+        return Event, (self.kind, self.lam, self.u, self.step, self.s, self.tangent, dict(self.data))
+
     def __repr__(self) -> str:
         return f"Event({self.kind!r}, lam={self.lam:.10g}, step={self.step}, s={self.s:.6g})"
 
@@ -211,7 +215,8 @@ class FoldDetector:
         inside = found is not None and -0.01 * step.a <= system.dot(found.U - step.start, first) <= 1.01 * step.a
         if found is not None and found.converged and inside:
             U = found.U
-            data.update(null_vector=found.null[:-1, 0], left_null_vector=found.psi, located="augmented")
+            phi = found.null[:-1, 0]
+            data.update(null_vector=phi / np.linalg.norm(phi), left_null_vector=found.psi, located="augmented")
         return Event("fold", float(U[-1]), U[:-1], index - 1, step.s + root, t, data)
 
 

@@ -64,9 +64,9 @@ def oriented(t) -> np.ndarray:
 
 def switched_start(system: ExtendedSystem, event, direction: int, tol: float):
     """The first point of the branch that leaves the branch-point ``event`` along
-    ``direction`` times its second tangent: ``(U*, t_2, linearisation at the point, its
-    series from U* (2, n+1), delta, Newton iterations)``; :class:`ContinuationFailure`
-    (``"corrector"``) when no ``delta`` works."""
+    ``direction`` times its second tangent: ``(linearisation at the point, its series from
+    U* (2, n+1), delta, its distance from the branch (Newton's last correction), Newton
+    iterations)``; :class:`ContinuationFailure` (``"corrector"``) when no ``delta`` works."""
     t1, t2 = (np.asarray(t, dtype=np.float64) for t in event.data["tangents"])
     t2 = direction * t2
     U_star = np.append(np.asarray(event.u, dtype=np.float64), event.lam)
@@ -75,14 +75,14 @@ def switched_start(system: ExtendedSystem, event, direction: int, tol: float):
     for _ in range(SWITCH_ATTEMPTS):
         try:
             lin = system.linearise(U_star + delta * t2, row, step=1)
-            lin, _, iterations = settle(system, lin, row, tol, step=1)
+            lin, distance, iterations = settle(system, lin, row, tol, step=1)
         except ContinuationFailure:
             delta, spent = 0.25 * delta, spent + 1
             continue
         offset = lin.point - U_star
         if system.dot(offset, t2) > 0.5 * (1.0 + apart) * system.norm(offset):  # nearer t2's ray than t1's
             series = np.stack([t2, (offset - delta * t2) / delta**2])
-            return U_star, t2, lin, series, delta, iterations + spent
+            return lin, series, delta, distance, iterations + spent
         delta, spent = 0.25 * delta, spent + iterations + 1
     raise ContinuationFailure(f"Newton does not reach the bifurcated branch from {SWITCH_ATTEMPTS} distances down to "
                               f"{4 * delta:.2g} (scaled) along its tangent", step=1, lam=event.lam, code="corrector")
