@@ -130,7 +130,8 @@ def figures(trivial, branches, straight, bent, out: pathlib.Path) -> list:
             lam, u = half.evaluate(np.linspace(0.0, half.s[-1], 300))
             ax.plot(lam, u[:, i], f"C{k - 1}{style}", label=f"mode {k}" if half is up else None)
         ax.plot(event.lam, 0.0, "ko", ms=5)
-        shapes.plot(x, np.concatenate([[0.0], up.u[-1], [0.0]]), f"C{k - 1}-", label=f"mode {k}, lam = {up.lam[-1]:.1f}")
+        shapes.plot(x, np.concatenate([[0.0], up.u[-1], [0.0]]), f"C{k - 1}-",
+                    label=f"mode {k}, lam = {up.lam[-1]:.1f}")
     ax.set_xlabel("lam")
     ax.set_ylabel("u at x = 1/(2k)")
     ax.set_title("Chafee-Infante: branch points (dots) and the modes switched onto")

@@ -39,6 +39,10 @@ from .bordered import ExtendedSystem, bordered_matrix, joint_function, release
 MAX_ITERATIONS = 12
 """Newton iterations allowed to locate a fold or a branch point."""
 
+DIVERGED = 4.0
+"""Newton is given up when a step is this many times its previous one: from a guess within its
+basin it converges quadratically, so a growing step means the guess was not."""
+
 CONVERGED = 64 * np.finfo(float).eps
 """Newton has converged when its step is this small relative to the point (scaled norms): a
 few ulps of U, where quadratic convergence leaves nothing to gain."""
@@ -137,11 +141,15 @@ def locate_fold(system: ExtendedSystem, U, phi, *, step: int) -> Located:
         newton = bordered_matrix(at.ju, at.jl[:, None], row[None, :])
         dy = _solve(system, newton, -np.append(at.r, vg[n]), step=step, lam=U[-1])
         U, size = U + S * dy, float(np.linalg.norm(dy))
+        if not (np.isfinite(size) and np.all(np.isfinite(w)) and np.any(w) and np.any(vg[:n])):
+            break
         psi, c = w / np.linalg.norm(w), vg[:n] / np.linalg.norm(vg[:n])
         if _converged(size, previous):
             return Located(U, np.append(S[:-1] * c, 0.0)[:, None], psi, iteration, True, size)
+        if size > DIVERGED * previous:
+            break
         previous = size
-    return Located(U, np.append(S[:-1] * c, 0.0)[:, None], psi, MAX_ITERATIONS, False, size)
+    return Located(U, np.append(S[:-1] * c, 0.0)[:, None], psi, iteration, False, size)
 
 
 def locate_branch_point(system: ExtendedSystem, U, t, phi, *, step: int) -> Located:
@@ -167,8 +175,12 @@ def locate_branch_point(system: ExtendedSystem, U, t, phi, *, step: int) -> Loca
                                  corner=np.column_stack([rows[:, n], np.zeros(2)]))
         dX = _solve(system, newton, -np.concatenate([at.r + mu * border, g]), step=step, lam=U[-1])
         U, mu, size = U + S * dX[: n + 1], mu + dX[n + 1], float(np.linalg.norm(dX[: n + 1]))
+        if not (np.isfinite(size) and np.all(np.isfinite(w)) and np.any(w)):
+            break
         b, C = w / np.linalg.norm(w), np.linalg.qr(V)[0]
         if _converged(size, previous):
             return Located(U, S[:, None] * C, b, iteration, True, size)
+        if size > DIVERGED * previous:
+            break
         previous = size
-    return Located(U, S[:, None] * C, b, MAX_ITERATIONS, False, size)
+    return Located(U, S[:, None] * C, b, iteration, False, size)

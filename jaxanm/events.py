@@ -66,8 +66,7 @@ class Event:
           positive: ``direction=+1`` of a switch follows it); ``"null_vectors"`` (n+1, 2), an orthonormal basis (scaled)
           of R_U's null space; ``"left_null_vector"`` (n,), R_u's left null vector ``psi``;
           ``"abe"`` (2, 2), the algebraic bifurcation equation's coefficients
-          ``psi^T R_UU[e_j, e_k]`` in that basis; ``"converged"``: whether Newton located it
-          to round-off (else the event is where it stopped).
+          ``psi^T R_UU[e_j, e_k]`` in that basis.
     """
 
     kind: str
@@ -227,12 +226,24 @@ basin is the distance to the next singularity, converges (a guess 5 units of lam
 step of 17 was measured to diverge)."""
 
 
+DIP = 0.1
+"""A sign change of ``det B`` is a branch point's only if ``|det B|`` falls inside the step to
+this fraction of its larger value at the step's ends (where it vanishes linearly, narrowing
+the bracket to :data:`BRACKET_WIDTH` takes it to about that fraction of it): a flip of its sign
+by round-off, where B is too badly scaled for the sign to mean anything (R_lam = e^u above
+1e20 on the 2D Bratu's upper branch, lam below 1e-20), does not dip."""
+
+
 class BranchPointDetector:
     """Simple branch points (module docstring): the sign of ``det B`` at every point; a step
     across which it changes is narrowed down on its series (``det B`` at a point inside, by a
     factorisation there) to :data:`BRACKET_WIDTH` of its length, each point chosen by the
     secant of ``det B`` (smooth, with a simple zero at the branch point), or halfway when the
-    secant did not halve the bracket; then Newton on the augmented system locates it."""
+    secant did not halve the bracket; if ``|det B|`` dipped there (:data:`DIP`), Newton on the
+    augmented system locates it.  A sign change that does not dip, or whose Newton does not
+    converge inside the step, is no simple branch point that can be located: it is not
+    reported (a point where R_U loses more than one rank, or round-off in a matrix too badly
+    scaled for its determinant's sign to mean anything)."""
 
     def __init__(self, system: ExtendedSystem):
         self.system = system
@@ -249,39 +260,42 @@ class BranchPointDetector:
         if previous is None or previous[0] == det[0] or step is None:
             return []
         try:
-            a, inside = self._narrowed(end.index, step, (0.0, *previous), (step.a, *det), lin)
+            a, inside, smallest = self._narrowed(end.index, step, (0.0, *previous), (step.a, *det), lin)
             try:
-                return [self._event(end.index, step, a, inside)]
+                if smallest > max(previous[1], det[1]) + np.log(DIP):
+                    return []  # det B does not vanish inside: its sign flipped with round-off
+                event = self._event(end.index, step, a, inside)
+                return [] if event is None else [event]
             finally:
                 if inside is not lin:
                     release(inside.fact)
         except ContinuationFailure:
-            return [Event("branch_point", float(end.point[-1]), end.point[:-1], end.index - 1, end.s, end.tangent,
-                          {"converged": False})]
+            return []  # a point of the bracket or of Newton where R_U cannot be evaluated or factorised
 
     def _narrowed(self, index: int, step: StepSeries, lo: tuple, hi: tuple, lin: Linearisation):
         """The bracket ``(a, sign, log|det B|)`` at both ends narrowed to :data:`BRACKET_WIDTH`
         of the step, or until the secant's guesses agree to that: ``(a inside, linearisation
-        there)``."""
-        system, held, bisect, guess = self.system, lin, False, np.inf
+        there, the smallest log|det B| met inside)``."""
+        system, held, bisect, guess, smallest = self.system, lin, False, np.inf, np.inf
         while hi[0] - lo[0] > BRACKET_WIDTH * step.a:
             width, top = hi[0] - lo[0], max(lo[2], hi[2])
             d_lo, d_hi = lo[1] * np.exp(lo[2] - top), hi[1] * np.exp(hi[2] - top)
             secant = lo[0] - d_lo * width / (d_hi - d_lo)
             if abs(secant - guess) <= BRACKET_WIDTH * step.a:
-                return secant, lin
+                return secant, lin, smallest
             a, guess = (lo[0] + 0.5 * width, np.inf) if bisect else (secant, secant)
             t = step.derivative(a)
             if lin is not held:
                 release(lin.fact)
             lin = system.linearise(step.at(a), system.tangent_row(t / system.norm(t)), step=index, aside=True)
             sign, logdet = lin.slogdet() or (np.nan, np.nan)  # the walk's factors tell it: so do these
-            middle = (a, sign, logdet)
+            middle, smallest = (a, sign, logdet), min(smallest, logdet)
             lo, hi = (middle, hi) if middle[1] == lo[1] else (lo, middle)
             bisect = hi[0] - lo[0] > 0.5 * width  # the secant did not halve the bracket: halve it next
-        return 0.5 * (lo[0] + hi[0]), lin
+        return 0.5 * (lo[0] + hi[0]), lin, smallest
 
-    def _event(self, index: int, step: StepSeries, a: float, lin: Linearisation) -> Event:
+    def _event(self, index: int, step: StepSeries, a: float, lin: Linearisation) -> Event | None:
+        """The branch point located from ``a`` on the step (None: Newton did not converge in it)."""
         system = self.system
         U, t = step.at(a), step.derivative(a)
         t = t / system.norm(t)
@@ -290,12 +304,11 @@ class BranchPointDetector:
         first = step.series[0] / system.norm(step.series[0])  # the step's parameter is <U - U_s, U_1>
         along = system.dot(found.U - step.start, first)
         if not (found.converged and -0.01 * step.a <= along <= 1.01 * step.a):  # Newton left the step
-            return Event("branch_point", float(U[-1]), U[:-1], index - 1, step.s + a, t, {"converged": False})
+            return None
         tangents, abe = branch_tangents(system, found, t)
         return Event("branch_point", float(found.U[-1]), found.U[:-1], index - 1,
                      step.s + float(np.clip(along, 0.0, step.a)), tangents[0],
-                     {"tangents": tangents, "null_vectors": found.null, "left_null_vector": found.psi, "abe": abe,
-                      "converged": True})
+                     {"tangents": tangents, "null_vectors": found.null, "left_null_vector": found.psi, "abe": abe})
 
 
 DETECTORS: dict[str, Callable[..., Callable[[StepEnd], list]]] = {

@@ -6,7 +6,6 @@ import pathlib
 import re
 
 import numpy as np
-
 from test_continuation_ends import discrete_fold
 
 PAGE = pathlib.Path(__file__).resolve().parents[1] / "docs" / "continuation.md"

@@ -19,6 +19,7 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.sparse
 
 import jaxanm
 
@@ -163,3 +164,51 @@ def test_tiny_and_huge_states_follow_the_same_branch_when_scaled(c):
     assert branch.a.size == reference.a.size and branch.stopped == reference.stopped
     np.testing.assert_allclose(branch.u / c, reference.u, rtol=1e-12, atol=1e-12)
     assert [e.lam for e in branch.events] == pytest.approx([e.lam for e in reference.events], rel=1e-12)
+
+
+M2 = 8  # the 2D grid: M2 x M2 interior points
+H2 = 1.0 / (M2 + 1)
+
+
+def bratu_2d(u, lam, params):
+    """The 2D Bratu residual on the unit square, 5-point Laplacian on M2 x M2 interior points."""
+    g = jnp.pad(u.reshape(M2, M2), 1)
+    lap = (g[2:, 1:-1] + g[:-2, 1:-1] + g[1:-1, 2:] + g[1:-1, :-2] - 4.0 * g[1:-1, 1:-1]) / H2**2
+    return (lap + lam * jnp.exp(g[1:-1, 1:-1])).ravel()
+
+
+def laplacian_2d() -> np.ndarray:
+    """The 5-point Laplacian of :func:`bratu_2d`, dense."""
+    line = np.diag(np.full(M2, -2.0)) + np.diag(np.ones(M2 - 1), 1) + np.diag(np.ones(M2 - 1), -1)
+    return (np.kron(line, np.eye(M2)) + np.kron(np.eye(M2), line)) / H2**2
+
+
+def test_bratu_2d_from_rest_passes_its_fold_and_ends_well():
+    """The 2D Bratu problem on an 8 x 8 grid with its sparsity pattern (SuperLU, whose
+    determinant's sign is read off its factors), from rest, no end condition, 60 steps: it
+    passes the fold (the discrete fold solved directly, dense, to 1e-8 relative) and ends
+    with a reason.  The one branch point it reports, on the upper branch, is one: R_U (n x
+    (n+1)) there has a singular value below 1e-10 of its largest (numpy's SVD): rank n - 1, a
+    two-dimensional null space (round-off of a point located to ~1e-14 leaves ~1e-14)."""
+    n = M2 * M2
+    line = scipy.sparse.diags([1, 1, 1], [-1, 0, 1], shape=(M2, M2), dtype=bool)
+    pattern = (scipy.sparse.kron(line, scipy.sparse.eye(M2)) + scipy.sparse.kron(scipy.sparse.eye(M2), line)) != 0
+    branch = jaxanm.continuation(bratu_2d, np.zeros(n), 0.0, sparsity=pattern, max_steps=60)
+    print(f"\n{branch.a.size} steps, {branch.stats.factorizations} factorisations: {branch.message}; {branch.events}")
+    assert branch.stopped == "max_steps" and np.all(np.isfinite(branch.u))
+    (fold,) = branch.events_of("fold")
+    assert len(branch.events_of("branch_point")) == 1
+    lap = laplacian_2d()
+    u, phi, lam = 1.2 * np.ones(n), np.ones(n) / np.sqrt(n), 6.8  # Newton on R = 0, R_u phi = 0, |phi| = 1
+    for _ in range(40):
+        e = np.exp(u)
+        jac = lap + np.diag(lam * e)
+        rows = np.block([[jac, np.zeros((n, n)), e[:, None]], [np.diag(lam * e * phi), jac, (e * phi)[:, None]],
+                         [np.zeros((1, n)), 2.0 * phi[None, :], np.zeros((1, 1))]])
+        step = np.linalg.solve(rows, -np.concatenate([lap @ u + lam * e, jac @ phi, [phi @ phi - 1.0]]))
+        u, phi, lam = u + step[:n], phi + step[n:2 * n], lam + step[-1]
+    assert abs(fold.lam - lam) < 1e-8 * lam and branch.lam[-1] < fold.lam
+    for event in branch.events_of("branch_point"):
+        R_U = np.column_stack([lap + np.diag(event.lam * np.exp(event.u)), np.exp(event.u)])
+        singular = np.linalg.svd(R_U, compute_uv=False)
+        assert singular[-1] < 1e-10 * singular[0], singular[-3:] / singular[0]

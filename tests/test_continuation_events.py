@@ -74,7 +74,6 @@ def test_branch_points_of_the_trivial_branch_at_the_discrete_eigenvalues(method,
     assert [e.kind for e in branch.events] == ["branch_point"] * 3
     np.testing.assert_allclose([e.lam for e in points], LAM_K[:3], rtol=1e-8)
     for k, event in enumerate(points, start=1):
-        assert event.data["converged"]
         t2 = event.data["tangents"][1]
         mode = np.sin(k * np.pi * X)
         if curved:  # v = u + sin(lam / 10) w: the tangent's v part is u's plus w times d sin / d lam
