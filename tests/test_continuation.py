@@ -239,6 +239,17 @@ def test_truss_snap_through_matches_the_closed_form():
     assert np.max(np.abs(branch.u[:, 0])) < 1e-12  # the symmetric path
 
 
+def test_truss_without_an_end_condition_ends_well_with_both_limit_points():
+    """No lam_end: past both limit points the truss stiffens (P grows with w without bound)
+    and the branch ends after max_steps, saying so, its two folds events at +-P* (1e-9 P*)."""
+    branch = jaxanm.continuation(truss_residual, np.zeros(2), 0.0, max_steps=120, order=ORDER, tol=TOL,
+                                 scale=TRUSS_SCALE)
+    assert branch.stopped == "max_steps" and "max_steps" in branch.message
+    np.testing.assert_allclose([e.lam for e in branch.events_of("fold")], [P_STAR, -P_STAR], rtol=0,
+                               atol=1e-9 * P_STAR)
+    assert branch.lam[-1] > 2 * P_STAR and branch.events_of("branch_point") == ()
+
+
 def test_truss_limit_points_match_the_closed_form_extrema():
     """The two limit points, roots of d lam / d a on the series: their loads are insensitive
     to first order to where on the branch the root falls, so they match +-P* to round-off of
