@@ -212,3 +212,17 @@ def test_bratu_2d_from_rest_passes_its_fold_and_ends_well():
         R_U = np.column_stack([lap + np.diag(event.lam * np.exp(event.u)), np.exp(event.u)])
         singular = np.linalg.svd(R_U, compute_uv=False)
         assert singular[-1] < 1e-10 * singular[0], singular[-3:] / singular[0]
+
+
+def test_a_residual_that_leaves_its_domain_ends_the_branch_there():
+    """``u - sqrt(lam)`` from (1, 1) towards smaller lam: the branch steepens as lam -> 0 (the
+    series' steps shrink with the distance to sqrt's singularity) and the first point with
+    lam < 0 has a NaN residual: the branch ends with "non_finite", its points kept, all with
+    lam >= 0 and within tol = 1e-8 of the curve lam = u^2 (their distance from it,
+    |lam - u^2| / sqrt(1 + 4 u^2), in the unit scales)."""
+    branch = jaxanm.continuation(lambda u, lam, p: u - jnp.sqrt(lam), np.ones(1), 1.0, direction=-1, max_steps=100,
+                                 order=8)
+    assert branch.stopped == "non_finite" and "not finite" in branch.message
+    assert np.all(branch.lam >= 0) and branch.lam[-1] < 1e-6
+    u = branch.u[:, 0]
+    assert np.all(np.abs(branch.lam - u**2) / np.sqrt(1 + 4 * u**2) <= 1e-8)
