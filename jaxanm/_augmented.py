@@ -44,8 +44,8 @@ DIVERGED = 4.0
 basin it converges quadratically, so a growing step means the guess was not."""
 
 CONVERGED = 64 * np.finfo(float).eps
-"""Newton has converged when its step is this small relative to the point (scaled norms): a
-few ulps of U, where quadratic convergence leaves nothing to gain."""
+"""Newton has converged when its step is this small relative to the point (scaled, at least
+1): a few ulps of U, where quadratic convergence leaves nothing to gain."""
 
 
 @functools.lru_cache(maxsize=64)
@@ -79,11 +79,13 @@ class Located(typing.NamedTuple):
     last_step: float
 
 
-def _converged(size: float, previous: float) -> bool:
-    """Newton's step (scaled) is at round-off of the scale, or it stalls (no longer halves)
-    after coming within sqrt(eps) of it, where quadratic convergence had reached round-off."""
-    stalled = size > 0.5 * previous and previous <= np.sqrt(np.finfo(float).eps)
-    return bool(size <= CONVERGED or stalled)
+def _converged(size: float, previous: float, point: float) -> bool:
+    """Newton's step (scaled) is at round-off of the point (its scaled norm ``point``, at least
+    1), or it stalls (no longer halves) after coming within sqrt(eps) of it, where quadratic
+    convergence had reached round-off."""
+    scale = max(point, 1.0)
+    stalled = size > 0.5 * previous and previous <= np.sqrt(np.finfo(float).eps) * scale
+    return bool(size <= CONVERGED * scale or stalled)
 
 
 class _Scaled(typing.NamedTuple):
@@ -140,11 +142,11 @@ def locate_fold(system: ExtendedSystem, U, phi, *, step: int) -> Located:
         row = -_hessian_rows(system, U, np.append(vg[:n], 0.0)[:, None], w)[0]
         newton = bordered_matrix(at.ju, at.jl[:, None], row[None, :])
         dy = _solve(system, newton, -np.append(at.r, vg[n]), step=step, lam=U[-1])
-        U, size = U + S * dy, float(np.linalg.norm(dy))
+        point, U, size = system.norm(U), U + S * dy, float(np.linalg.norm(dy))
         if not (np.isfinite(size) and np.all(np.isfinite(w)) and np.any(w) and np.any(vg[:n])):
             break
         psi, c = w / np.linalg.norm(w), vg[:n] / np.linalg.norm(vg[:n])
-        if _converged(size, previous):
+        if _converged(size, previous, point):
             return Located(U, np.append(S[:-1] * c, 0.0)[:, None], psi, iteration, True, size)
         if size > DIVERGED * previous:
             break
@@ -174,11 +176,11 @@ def locate_branch_point(system: ExtendedSystem, U, t, phi, *, step: int) -> Loca
         newton = bordered_matrix(at.ju, np.column_stack([at.jl, border]), rows[:, :n],
                                  corner=np.column_stack([rows[:, n], np.zeros(2)]))
         dX = _solve(system, newton, -np.concatenate([at.r + mu * border, g]), step=step, lam=U[-1])
-        U, mu, size = U + S * dX[: n + 1], mu + dX[n + 1], float(np.linalg.norm(dX[: n + 1]))
+        point, U, mu, size = system.norm(U), U + S * dX[: n + 1], mu + dX[n + 1], float(np.linalg.norm(dX[: n + 1]))
         if not (np.isfinite(size) and np.all(np.isfinite(w)) and np.any(w)):
             break
         b, C = w / np.linalg.norm(w), np.linalg.qr(V)[0]
-        if _converged(size, previous):
+        if _converged(size, previous, point):
             return Located(U, S[:, None] * C, b, iteration, True, size)
         if size > DIVERGED * previous:
             break

@@ -6,11 +6,13 @@ import pathlib
 import re
 
 import numpy as np
+import pytest
 from test_continuation_ends import discrete_fold
 
 PAGE = pathlib.Path(__file__).resolve().parents[1] / "docs" / "continuation.md"
 
 
+@pytest.mark.slow  # 10-20 s, two residuals compiled at order 15; what they show is tested by the default suite
 def test_the_examples_of_the_path_following_page_run_as_written(capsys):
     """The two code blocks of "Two examples to run", in one namespace as a reader pastes them:
     the Bratu branch ends with max_steps past a fold at the discrete fold (1e-8 relative), the

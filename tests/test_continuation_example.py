@@ -7,6 +7,7 @@ import importlib.util
 import pathlib
 
 import numpy as np
+import pytest
 
 EXAMPLE = pathlib.Path(__file__).resolve().parents[1] / "examples" / "bifurcations.py"
 
@@ -18,6 +19,7 @@ def load():
     return module
 
 
+@pytest.mark.slow  # 10-15 s of compiling; notebook 08 runs the same problems in the default suite
 def test_bifurcations_example(tmp_path, capsys):
     """Two modes of Chafee-Infante on N = 11 and the elastica of 10 links: the branch points at
     their closed forms (1e-10 relative: located to round-off), k - 1 zeros on mode k, the
