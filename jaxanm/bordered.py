@@ -223,7 +223,7 @@ class ExtendedSystem:
         n = U0.size - 1
         self.n, self.scale, self.stats = n, scale, stats
         self.params = on_device(params_float64(params))
-        self.residual_function = residual
+        self._residual = residual
         self._factorize = counted_factorize if factorize is None else factorize
         self._fact: Factorization | None = None
         kind = jacobian_kind(jacobian, sparsity, n)
@@ -235,11 +235,16 @@ class ExtendedSystem:
     def _detected_pattern(self, U0):
         """R_u's pattern from dense probes around ``U0``, at two values of lam: an entry with a
         factor lam vanishes at lam = 0."""
-        step = _step_form(self.residual_function)
+        step = _step_form(self._residual)
         lam = U0[-1]
         probes = [detect_sparsity(step, U0[:-1], None, np.float64(at), None, self.params)
                   for at in (lam, lam + 0.1 * (1.0 + abs(lam)))]
         return (probes[0] + probes[1]).astype(bool).tocsc()
+
+    @property
+    def residual_function(self):
+        """The residual ``(u, lam, params) -> R`` of the problem."""
+        return self._residual
 
     def dot(self, a, b) -> float:
         """Inner product of the scaled unknowns."""
