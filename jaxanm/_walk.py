@@ -99,7 +99,8 @@ class Walk:
             stats.amax, stats.orders = list(self.amax), list(self.orders)
         stats.close(time.perf_counter() - began)
         points, n = np.array(self.points), self.system.n
-        series = np.array(self.series).reshape(len(self.a), -1, n + 1) if keep_series else None
+        rows = self.orders[0] if self.orders else 1
+        series = np.array(self.series).reshape(len(self.a), rows, n + 1) if keep_series else None
         events = tuple(sorted(self.events, key=lambda e: e.s))
         return Branch(lam=points[:, -1].copy(), u=points[:, :-1].copy(), a=np.array(self.a),
                       amax=np.array(self.amax) if method == "anm" else None,

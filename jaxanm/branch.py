@@ -175,11 +175,13 @@ class Branch:
 
     def limit_points(self) -> BranchPoints:
         """The folds in ``lam``: the fold events (:attr:`events`), or, on a branch followed
-        without fold detection, the same test on its series (:func:`jaxanm.events.fold_roots`:
-        only turns of the tangent, not wiggles of an interpolant where lam is flat)."""
+        without fold detection (``events`` without ``"fold"``), the same test on its series
+        (:func:`jaxanm.events.fold_roots`, unpolished: only turns of lam by more than the
+        steps' end distances, not wiggles of an interpolant where lam is flat)."""
         folds = self.events_of("fold")
-        if folds or self.series is None:
-            u = np.array([e.u for e in folds]).reshape(len(folds), -1)
+        detected = self.source is None or "fold" in self.source.options.get("events", ())
+        if detected or self.series is None:
+            u = np.array([e.u for e in folds]).reshape(len(folds), self.u.shape[1])
             return BranchPoints(np.array([e.lam for e in folds]), u, np.array([e.s for e in folds]))
         # the branch's accuracy in lam: Newton's last corrections, the ANM's end points' distances
         newton = self.method == "newton"
