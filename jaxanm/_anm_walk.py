@@ -84,8 +84,8 @@ def _step(system, lin, opts: Options, walk: Walk, step: int, start_distance: flo
     distance, iterations = found.distance, 0
     if opts.correct:
         lin_next, distance, iterations = settle(system, lin_next, constraint, opts.tol * a, step=step)
-    walk.add(lin_next, orient(system, lin_next), a, coeffs, correction=found.distance, amax=amax,
-             halvings=halvings, iterations=iterations)
+    walk.add(lin_next, orient(system, lin_next), a, coeffs, correction=found.distance, distance=distance,
+             amax=amax, halvings=halvings, iterations=iterations)
     return lin_next, distance, end
 
 

@@ -43,10 +43,6 @@ DIVERGED = 4.0
 """Newton is given up when a step is this many times its previous one: from a guess within its
 basin it converges quadratically, so a growing step means the guess was not."""
 
-CONVERGED = 64 * np.finfo(float).eps
-"""Newton has converged when its step is this small relative to the point (scaled, at least
-1): a few ulps of U, where quadratic convergence leaves nothing to gain."""
-
 
 @functools.lru_cache(maxsize=64)
 def second_derivative(residual):
@@ -79,13 +75,11 @@ class Located(typing.NamedTuple):
     last_step: float
 
 
-def _converged(size: float, previous: float, point: float) -> bool:
-    """Newton's step (scaled) is at round-off of the point (its scaled norm ``point``, at least
-    1), or it stalls (no longer halves) after coming within sqrt(eps) of it, where quadratic
-    convergence had reached round-off."""
-    scale = max(point, 1.0)
-    stalled = size > 0.5 * previous and previous <= np.sqrt(np.finfo(float).eps) * scale
-    return bool(size <= CONVERGED * scale or stalled)
+def _converged(size: float, point: float) -> bool:
+    """Newton's step (scaled) is within sqrt(eps) of the point (its scaled norm ``point``, at
+    least 1): the point it reached is then off by about the step's square (quadratic
+    convergence), round-off of U."""
+    return bool(size <= np.sqrt(np.finfo(float).eps) * max(point, 1.0))
 
 
 class _Scaled(typing.NamedTuple):
@@ -146,7 +140,7 @@ def locate_fold(system: ExtendedSystem, U, phi, *, step: int) -> Located:
         if not (np.isfinite(size) and np.all(np.isfinite(w)) and np.any(w) and np.any(vg[:n])):
             break
         psi, c = w / np.linalg.norm(w), vg[:n] / np.linalg.norm(vg[:n])
-        if _converged(size, previous, point):
+        if _converged(size, point):
             return Located(U, np.append(S[:-1] * c, 0.0)[:, None], psi, iteration, True, size)
         if size > DIVERGED * previous:
             break
@@ -180,7 +174,7 @@ def locate_branch_point(system: ExtendedSystem, U, t, phi, *, step: int) -> Loca
         if not (np.isfinite(size) and np.all(np.isfinite(w)) and np.any(w)):
             break
         b, C = w / np.linalg.norm(w), np.linalg.qr(V)[0]
-        if _converged(size, previous, point):
+        if _converged(size, point):
             return Located(U, S[:, None] * C, b, iteration, True, size)
         if size > DIVERGED * previous:
             break

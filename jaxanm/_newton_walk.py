@@ -53,7 +53,8 @@ def walk_newton(system: ExtendedSystem, walk: Walk, opts: Options) -> None:
         z = lin.z if system.dot(lin.z, t) > 0 else -lin.z
         t_new = z / system.norm(z)
         a = system.dot(t, U_new - U)
-        walk.add(lin, t_new, a, hermite(system, U, U_new, t, t_new, a), correction=size, halvings=halvings,
+        walk.add(lin, t_new, a, hermite(system, U, U_new, t, t_new, a), correction=size, distance=size,
+                 halvings=halvings,
                  iterations=iterations, residual_norm=float(np.max(np.abs(system.residual(U_new)))), point=U_new)
         if end is not None:
             walk.stop("lam_end" if end[0] == system.n else "stop_at")

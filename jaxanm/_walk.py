@@ -30,6 +30,7 @@ class Walk:
     a: list = dataclasses.field(default_factory=list)
     amax: list = dataclasses.field(default_factory=list)
     corrections: list = dataclasses.field(default_factory=list)
+    distances: list = dataclasses.field(default_factory=list)
     series: list = dataclasses.field(default_factory=list)
     orders: list = dataclasses.field(default_factory=list)
     halvings: int = 0
@@ -38,10 +39,12 @@ class Walk:
     stopped: str = ""
     message: str = ""
 
-    def start(self, point, tangent, residual_norm: float, lin: Linearisation | None, iterations: int = 0) -> None:
-        """Record the first point, with its unit ``tangent`` and its linearisation (None where
-        the bordered matrix is singular: a branch point)."""
+    def start(self, point, tangent, residual_norm: float, lin: Linearisation | None, iterations: int = 0,
+              distance: float = 0.0) -> None:
+        """Record the first point, with its unit ``tangent``, its linearisation (None where the
+        bordered matrix is singular: a branch point) and its distance from the branch."""
         self.newton_iterations += iterations
+        self.distances.append(float(distance))
         self._record(point, tangent, residual_norm)
         self.notify(lin, None)
 
@@ -50,14 +53,16 @@ class Walk:
         self.tangents.append(np.array(tangent, dtype=np.float64))
         self.residual_norms.append(residual_norm)
 
-    def add(self, lin: Linearisation, tangent, a: float, series, *, correction: float, amax=np.nan,
-            halvings: int = 0, iterations: int = 0, residual_norm=None, point=None) -> None:
+    def add(self, lin: Linearisation, tangent, a: float, series, *, correction: float, distance: float,
+            amax=np.nan, halvings: int = 0, iterations: int = 0, residual_norm=None, point=None) -> None:
         """Record a step: its end point (``point``, default ``lin.point``; factorised there, or
-        within tol of it) and unit tangent, its
-        length ``a`` (scaled pseudo-arclength), its ``series`` ((q, n+1) from the step's start),
-        the size of its end correction, its validity range, the halvings of its length and the
-        Newton iterations it took; then tell the detectors."""
+        within tol of it) and unit tangent, its length ``a`` (scaled pseudo-arclength), its
+        ``series`` ((q, n+1) from the step's start), the size of its end correction (its end's
+        distance from the branch before it) and the end point's distance after it, its validity
+        range, the halvings of its length and the Newton iterations it took; then tell the
+        detectors."""
         self.a.append(float(a))
+        self.distances.append(float(distance))
         self.amax.append(float(amax))
         self.corrections.append(float(correction))
         self.series.append(np.asarray(series))
@@ -73,7 +78,8 @@ class Walk:
         if not self.detectors:
             return
         index, s = len(self.points) - 1, float(np.sum(self.a))
-        step = None if series is None else StepSeries(self.points[-2], s - self.a[-1], self.a[-1], series)
+        step = None if series is None else StepSeries(self.points[-2], s - self.a[-1], self.a[-1], series,
+                                                      self.corrections[-1], self.distances[-2])
         end = StepEnd(index=index, point=self.points[-1], tangent=self.tangents[-1], s=s, linearisation=lin,
                       system=self.system, step=step)
         for detector in self.detectors:

@@ -150,7 +150,7 @@ def _begin(walk: Walk, system: ExtendedSystem, U0, start, direction: int, tol: f
     its distance from the branch)`` to go on from, or None when the walk already ended."""
     if start is None:
         lin, distance, iterations = corrected_start(system, U0, direction, tol)
-        walk.start(lin.point, orient(system, lin), float(np.max(np.abs(lin.residual))), lin, iterations)
+        walk.start(lin.point, orient(system, lin), float(np.max(np.abs(lin.residual))), lin, iterations, distance)
         return lin, distance
     r = _check_start_event(system, U0, start)
     walk.start(U0, direction * np.asarray(start.data["tangents"][1]), float(np.max(np.abs(r))), None)
@@ -161,7 +161,8 @@ def _begin(walk: Walk, system: ExtendedSystem, U0, start, direction: int, tol: f
         return None
     padded = np.zeros((rows, system.n + 1))
     padded[:2] = series
-    walk.add(lin, orient(system, lin), delta, padded, correction=distance, amax=delta, iterations=iterations)
+    walk.add(lin, orient(system, lin), delta, padded, correction=distance, distance=distance, amax=delta,
+             iterations=iterations)
     return lin, distance
 
 

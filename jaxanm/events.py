@@ -60,7 +60,8 @@ class Event:
         - fold: ``"null_vector"`` (n,), the unit null vector of R_u (the tangent's u part);
           ``"left_null_vector"`` (n,) ``psi``, ``psi^T R_u = 0`` (when polished);
           ``"located"``: ``"augmented"`` (polished by Newton on the augmented system) or
-          ``"series"`` (the root on the step's series, where the polish did not converge).
+          ``"series"`` (the root on the ANM's series, accurate enough not to need it,
+          :data:`POLISH_BELOW`, or where the polish did not converge).
         - branch_point: ``"tangents"`` (2, n+1), the unit tangents of the branch followed and
           of the bifurcated branch (the second one's first entry of largest magnitude, scaled,
           positive: ``direction=+1`` of a switch follows it); ``"null_vectors"`` (n+1, 2), an orthonormal basis (scaled)
@@ -92,12 +93,16 @@ class StepSeries(NamedTuple):
     """The step that ended at a point: where it started (``start`` (n+1,), at arclength
     ``s``), its length ``a`` (scaled pseudo-arclength) and its ``series`` (q, n+1):
     ``U(a') = start + sum_k a'^k series[k-1]`` for ``a'`` in ``[0, a]`` (the ANM's own series;
-    Newton's cubic Hermite interpolant of the step)."""
+    Newton's cubic Hermite interpolant of the step); how far from the branch its end was before
+    the end correction (``end_error``) and its start is (``start_error``), scaled: the series'
+    accuracy."""
 
     start: np.ndarray
     s: float
     a: float
     series: np.ndarray
+    end_error: float = 0.0
+    start_error: float = 0.0
 
     def at(self, a: float) -> np.ndarray:
         """``U`` on the step's series at ``a``."""
@@ -182,11 +187,20 @@ def fold_roots(series, a: float, noise: float, ends_lam: tuple | None = None) ->
     return np.array([roots[int(np.argmax(lam) if ends_lam[0] > 0 else np.argmin(lam))]])
 
 
+POLISH_BELOW = 1e-10
+"""A fold on the ANM's series is polished on its augmented system unless the series' error
+in lam there is below this fraction of lam: the step's measured end error scaled down to the
+root by the truncation's ``(a / a_end)^(p+1)``, plus its start's distance (measured on the
+Bratu problem: 2e-12 to 3e-11 relative from the series alone; 7e-9 on ``u - lam e^u``, whose
+fold lies near its step's end)."""
+
+
 class FoldDetector:
-    """Folds in lam (module docstring), each polished by Newton on its augmented system (from
-    the series' root: two factorisations per iteration, one or two iterations); ``series``:
-    whether the steps' series are the branch's own (the ANM's) or interpolants (Newton's,
-    where the tangent's turn between the points decides)."""
+    """Folds in lam (module docstring); ``series``: whether the steps' series are the branch's
+    own (the ANM's: a fold is polished by Newton on its augmented system, three factorisations
+    per iteration, only where the series is not accurate enough, :data:`POLISH_BELOW`) or
+    interpolants (Newton's: the tangent's turn between the points decides, every fold is
+    polished)."""
 
     def __init__(self, system: ExtendedSystem, tol: float, series: bool):
         self.system, self.tol, self.series = system, tol, series
@@ -206,6 +220,9 @@ class FoldDetector:
         U, t = step.at(root), step.derivative(root)
         t = t / system.norm(t)
         data: dict = {"null_vector": t[:-1] / np.linalg.norm(t[:-1]), "located": "series"}
+        truncation = max(step.end_error - step.start_error, 0.0) * (root / step.a) ** (step.series.shape[0] + 1)
+        if self.series and (truncation + step.start_error) * system.scale[-1] <= POLISH_BELOW * abs(U[-1]):
+            return Event("fold", float(U[-1]), U[:-1], index - 1, step.s + root, t, data)
         try:
             found = locate_fold(system, U, t[:-1], step=index)
         except ContinuationFailure:
