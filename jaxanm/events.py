@@ -190,9 +190,9 @@ def fold_roots(series, a: float, noise: float, ends_lam: tuple | None = None) ->
 POLISH_BELOW = 1e-10
 """A fold on the ANM's series is polished on its augmented system unless the series' error
 in lam there is below this fraction of lam: the step's measured end error scaled down to the
-root by the truncation's ``(a / a_end)^(p+1)``, plus its start's distance (measured on the
-Bratu problem: 2e-12 to 3e-11 relative from the series alone; 7e-9 on ``u - lam e^u``, whose
-fold lies near its step's end)."""
+root by the truncation's ``(a / a_end)^(p+1)``, plus its start's distance (measured: 2e-12
+to 3e-11 from the series alone on the Bratu problem, lam about 3.5; 7e-9 relative on
+``u - lam e^u``, whose fold lies near its step's end)."""
 
 
 class FoldDetector:
