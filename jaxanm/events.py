@@ -11,10 +11,11 @@ of the user's.  A detector keeps its own state between calls (it sees the points
 
 - ``"fold"`` (:class:`FoldDetector`): a root of ``d lam / d a`` of a step's series where lam
   turns by more than the branch's accuracy (:func:`fold_roots`; on a Newton branch, whose
-  interpolant is only cubic, the tangent's turn between the points decides), polished by
-  Newton on the fold's augmented system (:mod:`jaxanm._augmented`): lam is stationary at a
-  fold, so the series' root gives it to about ``tol a`` already, and the polish to round-off
-  (and gives the left null vector).
+  interpolant is only cubic, the tangent's turn between the points decides); lam is
+  stationary at a fold, so the ANM's series gives it to its own accuracy, and where that is
+  not enough (:data:`POLISH_BELOW`; always on a Newton branch) it is polished by Newton on
+  the fold's augmented system (:mod:`jaxanm._augmented`), which also gives the left null
+  vector.
 - ``"branch_point"`` (:class:`BranchPointDetector`): ``det B`` changes sign across a step that
   passes a simple branch point, and only there (its sign is read off the LU already made);
   the point is then located by Newton on its augmented system (:mod:`jaxanm._augmented`) and
