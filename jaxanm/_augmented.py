@@ -137,7 +137,7 @@ def locate_fold(system: ExtendedSystem, U, phi, *, step: int) -> Located:
         newton = bordered_matrix(at.ju, at.jl[:, None], row[None, :])
         dy = _solve(system, newton, -np.append(at.r, vg[n]), step=step, lam=U[-1])
         point, U, size = system.norm(U), U + S * dy, float(np.linalg.norm(dy))
-        if not (np.isfinite(size) and np.all(np.isfinite(w)) and np.any(w) and np.any(vg[:n])):
+        if not (np.isfinite(size) and np.all(np.isfinite(w)) and np.linalg.norm(w) > 0 and np.linalg.norm(vg[:n]) > 0):
             break
         psi, c = w / np.linalg.norm(w), vg[:n] / np.linalg.norm(vg[:n])
         if _converged(size, point):

@@ -161,13 +161,20 @@ def fold_roots(series, a: float, noise: float, ends_lam: tuple | None = None) ->
     lam is within ``noise`` of both step ends is a flat stretch, not a fold.
 
     ``ends_lam``: the lam components of the exact unit tangents at the step's ends, for a
-    "series" that is only an interpolant (Newton's): a fold turns the tangent, so the number
-    of folds has the parity of their sign change; when the roots left disagree, the parity
-    decides (one fold, at the root of the most extreme lam, or none)."""
+    "series" that is only an interpolant (Newton's, whose wiggles over a long step can be
+    deeper than any noise level): a fold turns the tangent, so the sign change between them
+    decides, one fold (the root of the most extreme lam, if it turns by more than ``noise``)
+    or none; two folds within one such step are not seen."""
     lam_series = np.append(0.0, series[:, -1])
     slope = np.arange(1, series.shape[0] + 1) * series[:, -1]
     roots = list(sign_changes(slope, real_roots(slope, a, closed=False), a))
     lam = [float(np.polynomial.polynomial.polyval(r, lam_series)) for r in roots]
+    ends = (0.0, float(np.polynomial.polynomial.polyval(a, lam_series)))
+    if ends_lam is not None:
+        if (ends_lam[0] > 0) == (ends_lam[1] > 0) or not roots:
+            return np.zeros(0)
+        k = int(np.argmax(lam) if ends_lam[0] > 0 else np.argmin(lam))
+        roots, lam = roots[k:k + 1], lam[k:k + 1]
     j = 0
     while j + 1 < len(roots):
         if abs(lam[j] - lam[j + 1]) < noise:
@@ -175,17 +182,7 @@ def fold_roots(series, a: float, noise: float, ends_lam: tuple | None = None) ->
             j = max(j - 1, 0)
         else:
             j += 1
-    ends = (0.0, float(np.polynomial.polynomial.polyval(a, lam_series)))
-    keep = [k for k, value in enumerate(lam) if max(abs(value - ends[0]), abs(value - ends[1])) >= noise]
-    roots, lam = [roots[k] for k in keep], [lam[k] for k in keep]
-    if ends_lam is None:
-        return np.array(roots)
-    turns = (ends_lam[0] > 0) != (ends_lam[1] > 0)
-    if len(roots) % 2 == int(turns):
-        return np.array(roots)
-    if not (turns and roots):
-        return np.zeros(0)
-    return np.array([roots[int(np.argmax(lam) if ends_lam[0] > 0 else np.argmin(lam))]])
+    return np.array([r for r, value in zip(roots, lam) if max(abs(value - ends[0]), abs(value - ends[1])) >= noise])
 
 
 POLISH_BELOW = 1e-10
