@@ -40,7 +40,7 @@ def walk_newton(system: ExtendedSystem, walk: Walk, opts: Options) -> None:
             end = _crossed(U, U_new, opts.ends)
             if end is not None:
                 U_pred = U + end[2] * (U_new - U)
-                found, more = _newton(system, U_pred, system.axis_row(end[0]), end[1], opts, step)
+                found, more, _ = _newton(system, U_pred, system.axis_row(end[0]), end[1], opts, step)
                 iterations += more
                 if found is None:
                     raise ContinuationFailure(f"Newton at fixed U[{end[0]}] = {end[1]:.6g} did not converge",
@@ -70,7 +70,7 @@ def _arclength_step(system, U, t, ds, opts: Options, step):
     halvings, iterations = 0, 0
     while True:
         row = system.tangent_row(t)
-        found, used = _newton(system, U + ds * t, row, float(row @ U) + ds, opts, step)
+        found, used, refused = _newton(system, U + ds * t, row, float(row @ U) + ds, opts, step)
         iterations += used
         if found is not None:
             U_new, lin, size = found
@@ -78,6 +78,9 @@ def _arclength_step(system, U, t, ds, opts: Options, step):
         halvings += 1
         ds *= 0.5
         if ds < opts.ds_min:
+            if refused is not None and refused.code == "non_finite":  # no step, however short, stays finite
+                raise ContinuationFailure(f"{refused.reason} at every predictor down to ds_min = {opts.ds_min:g}",
+                                          step=step, lam=U[-1], code="non_finite")
             raise ContinuationFailure(f"the corrector fails down to ds_min = {opts.ds_min:g}", step=step, lam=U[-1],
                                       code="min_step")
 
@@ -85,30 +88,31 @@ def _arclength_step(system, U, t, ds, opts: Options, step):
 def _newton(system, U, row, target, opts: Options, step):
     """Newton on ``R(U) = 0``, ``row . U = target`` from ``U``: ``((U, linearisation at the last
     iterate, last correction) or None when it diverges or does not converge, the updates
-    made)``.  Corrections that stall (at the point's round-off floor) within ``CHECK_LIMIT tol``
-    are accepted; above, within round-off's bound (:meth:`ExtendedSystem.round_off`):
+    made, the failure that refused an iterate (R not finite, B singular) or None)``.
+    Corrections that stall (at the point's round-off floor) within ``CHECK_LIMIT tol`` are
+    accepted; above, within round-off's bound (:meth:`ExtendedSystem.round_off`):
     :class:`ContinuationFailure` ``"round_off"``."""
     previous = np.inf
     for iteration in range(opts.max_iter):
         try:
             lin = system.linearise(U, row, step=step)
-        except ContinuationFailure:
-            return None, iteration  # a predictor where R is not finite or B singular: a shorter step may do
+        except ContinuationFailure as refused:
+            return None, iteration, refused  # R not finite or B singular at this iterate: a shorter step may do
         dU = lin.solve(-lin.residual, target - row @ U)
         size = system.norm(dU)
         if not (np.isfinite(size) and size < previous):
             if size <= CHECK_LIMIT * opts.tol:  # stalled at round-off within the leeway: as converged as can be
-                return (U + dU, lin, size), iteration + 1
+                return (U + dU, lin, size), iteration + 1, None
             if np.isfinite(size) and size <= CHECK_LIMIT * system.round_off(lin, row):
                 raise ContinuationFailure(f"Newton's corrections stall at {size:.2g} (scaled) from the branch, "
                                           f"within round-off of R's terms, above tol = {opts.tol:g}", step=step,
                                           lam=U[-1], code="round_off")
-            return None, iteration
+            return None, iteration, None
         U = U + dU
         if size <= opts.tol:
-            return (U, lin, size), iteration + 1
+            return (U, lin, size), iteration + 1, None
         previous = size
-    return None, opts.max_iter
+    return None, opts.max_iter, None
 
 
 def _crossed(U, U_new, ends):

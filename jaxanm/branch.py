@@ -22,8 +22,10 @@ STOP_REASONS = {
     "singular": "the bordered matrix cannot be factorised here (a singular point the branch cannot pass)",
     "round_off": "round-off in R, through the conditioning of the bordered matrix, leaves the points farther from "
                  "the branch than the steps promise: a larger tol, or scale= giving the unknowns their sizes",
-    "min_step": "the step fell below what can advance the branch (the series' validity range, or halvings of a "
-                "step whose end misses its accuracy): a lower order, a larger tol, or max_step",
+    "min_step": "the step fell below what can advance the branch (the series' validity range, halvings of a "
+                "step whose end misses its accuracy, or Newton's corrector failing down to ds_min): a larger tol, "
+                "a lower order or max_step (ANM); if none helps, R is too ill-conditioned here (entries near "
+                "overflow, a singular point)",
     "corrector": "Newton's corrections do not converge onto the branch: shorter steps (max_step, ds_max)",
 }
 """The reasons a :class:`Branch` ends (:attr:`Branch.stopped`) with what each means or
