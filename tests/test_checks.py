@@ -100,3 +100,16 @@ def test_a_module_raises_its_own_error_class():
                         (choice, ("a", ("b",)))]:
         with pytest.raises(OwnError):
             check("field", *args, error=OwnError)
+
+
+@pytest.mark.parametrize(("option", "message"), [
+    ({"polish_tol": 1e-2}, r"polish_tol must be a number in \(0, 0.001\), got 0.01"),
+    ({"max_polish": 0}, "max_polish must be an integer >= 1, got 0"),
+    ({"max_refine": 2.0}, "max_refine must be an integer >= 1, got 2.0"),
+    ({"tangents": 1}, "tangents must be True or False, got 1"),
+])
+def test_sensitivity_options_are_checked_before_any_computation(option, message):
+    from jaxanm import ForwardSensitivity
+
+    with pytest.raises(InputError, match=message):
+        ForwardSensitivity(lambda x, x_old, t, dt, p: x, {"k": 1.0}, {"k": 1.0}, lambda t, x, p: {"x": x}, **option)

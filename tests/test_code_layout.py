@@ -39,9 +39,10 @@ FSW_IMPORTS = {
     "simulate": {"scene", "geometry", "discretisation", "start", "record", "lagrangian", "stability"},
     # results: files and figures of an FSWResult
     "io": set(),
-    "io.figures": {"scene", "record", "io.weld_figures"},
+    "io.figures": {"scene", "record"},
     "io.weld_figures": {"io.figures"},
-    "io.output": {"scene", "geometry", "record", "axisymmetric", "oscillation", "io", "io.figures"},
+    "io.output": {"scene", "geometry", "record", "axisymmetric", "oscillation", "io", "io.figures",
+                  "io.weld_figures"},
     # analyses of a scene or of results, beside the flow
     "axisymmetric": {"scene"},
     "oscillation": set(),

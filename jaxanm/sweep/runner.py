@@ -26,9 +26,9 @@ import uuid
 from contextlib import contextmanager
 from pathlib import Path
 
-from jaxanm._extras import require
 from jaxanm.errors import InputError
 from jaxanm.fsw.compare import load_run
+from jaxanm.internal import integer, require
 from jaxanm.sweep.grid import Grid, read_grid
 from jaxanm.sweep.pareto import plot_pareto
 from jaxanm.sweep.richardson import write_reference
@@ -144,15 +144,15 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
 def _checked_inputs(grid, scheduler: str | None, workers, reference) -> Grid:
     """The grid (read from its file if a path), after checking ``workers``, that
     ``reference`` holds a run (:class:`InputError`) and that the extras it needs are installed
-    (:class:`jaxanm._extras.MissingExtraError`, an :class:`InputError`)."""
+    (:class:`jaxanm.internal.MissingExtraError`, an :class:`InputError`)."""
     if not isinstance(grid, Grid):
         grid = read_grid(grid)
     require("dask.distributed", "sweep", "jaxanm sweep (its tasks run on Dask)")
     tasks = (*grid.tasks, *(grid.richardson.tasks if grid.richardson is not None else ()))
     if any(t.ida is not None for t in tasks):
         require("sksundae", "ida", "a sweep task of kind \"ida\" (SUNDIALS IDA)")
-    if scheduler is None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise InputError(f"workers must be an integer >= 1, got {workers!r}")
+    if scheduler is None:
+        integer("workers", workers, 1, hint="the processes of the local Dask cluster")
     if reference is not None:
         try:
             load_run(reference)

@@ -25,15 +25,17 @@ import enum
 import json
 import logging
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
+from matplotlib.figure import Figure
 
-from jaxanm._extras import missing_extra_message
 from jaxanm.checkpoint import atomic_path
 from jaxanm.fsw.io import figures
+from jaxanm.fsw.io.weld_figures import weld_figures
+from jaxanm.internal import missing_extra_message
 
 log = logging.getLogger(__name__)
 
@@ -444,15 +446,23 @@ def write_run(result, out_dir: str | os.PathLike, scene) -> list[Path]:
     return write_outputs(result, out_dir, {"kind": scene.solver.kind, "options": result.solver})
 
 
+def figure_builders(result) -> list[tuple[str, Callable[[], Figure]]]:
+    """Every figure a run writes, as ``(file name, builder)`` pairs: the paper's
+    (:func:`jaxanm.fsw.io.figures.paper_figures`), then a travelling tool's
+    (:func:`jaxanm.fsw.io.weld_figures.weld_figures`); a builder may raise
+    :class:`~jaxanm.fsw.io.figures.FigureSkipped`."""
+    return figures.paper_figures(result) + weld_figures(result)
+
+
 def write_figures(result, out_dir: str | os.PathLike) -> list[Path]:
-    """Write the paper's figures (PNG, 150 dpi) into ``out_dir``; return the paths written.
+    """Write the figures of :func:`figure_builders` (PNG, 150 dpi) into ``out_dir``; return the paths written.
 
     A figure whose data is absent is skipped with a logged note, and a file of that name
     left by an earlier run in the same directory is removed (it would describe another run).
     """
     out_dir = Path(out_dir)
     written = []
-    for name, build in figures.paper_figures(result):
+    for name, build in figure_builders(result):
         path = out_dir / name
         try:
             fig = build()
