@@ -124,8 +124,9 @@ class Sensitivities:
     wall_time_s: float
     unravel: Callable | None = dataclasses.field(repr=False, default=None)
 
-    def gradient(self, d_observed) -> object:
-        """Chain rule: ``sum d_observed . d observed/d theta`` as a pytree shaped like theta.
+    def gradient(self, d_observed) -> dict:
+        """Chain rule: ``sum d_observed . d observed/d theta`` as a dict shaped like theta (theta
+        is a dict of arrays: :func:`jaxanm._theta.theta_float64` refuses anything else).
 
         ``d_observed`` has the structure of ``observed`` without ``"t"`` (e.g. from
         ``jax.grad`` of a loss with respect to the observations).

@@ -11,7 +11,7 @@ adjoint: :mod:`jaxanm._forward_sensitivity`, whose :class:`ForwardSensitivity` i
 from __future__ import annotations
 
 import time
-from typing import Callable, cast
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -96,7 +96,7 @@ def loss_value_and_grad(loss: Callable, sens: Sensitivities, theta: dict):
     if jnp.ndim(value) != 0:
         raise InputError(f"loss must return a scalar, got shape {jnp.shape(value)}")
     g_data, g_theta = vjp(jnp.ones_like(value))
-    chain = cast(dict, sens.gradient(g_data))  # theta is a dict (_theta_float64): so is its unravel
+    chain = sens.gradient(g_data)
     grad = {k: np.asarray(chain[k] + np.asarray(g_theta[k]), dtype=np.float64) for k in theta}
     return np.float64(value), grad
 

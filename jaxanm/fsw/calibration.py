@@ -151,10 +151,11 @@ def _setup(scene: Scene):
     """Model, params (with the observation stencils under ``"obs"``), initial state."""
     g = scene.geometry
     cloud, _, model, params, x0 = discretise(scene)
-    obs = {"probes": {}, "sections": {}}
+    obs: dict[str, dict] = {"probes": {}, "sections": {}}
     sites = ProbeSites.of(scene, cloud)  # at the probe positions, as in a run
-    for j, name in enumerate(sites.names):
-        obs["probes"][name] = {"index": sites.stencils.index[j:j + 1], "phi": sites.stencils.phi[j:j + 1]}
+    if sites.stencils is not None:  # None without probes
+        for j, name in enumerate(sites.names):
+            obs["probes"][name] = {"index": sites.stencils.index[j:j + 1], "phi": sites.stencils.phi[j:j + 1]}
     for s in scene.sections:
         st = evaluate_stencils(cloud.points, cloud.n_tool, g, np.linspace(s.start, s.end, s.samples))
         obs["sections"][s.name] = {"index": np.asarray(st.index), "phi": np.asarray(st.phi)}

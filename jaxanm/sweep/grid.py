@@ -157,7 +157,8 @@ def grid_from_dict(data: dict, name: str = "grid", base_dir=".", source: str = "
     keys = tuple(dict.fromkeys(k for p in points for k in p))
     keys = tuple(sorted(keys, key=lambda k: k.startswith("solver.")))  # scene fields first, stable
     ids = _task_ids(points, keys)
-    tasks, seen = [], {}
+    tasks: list[Task] = []
+    seen: dict[str, Task] = {}
     for task_id, overrides in zip(ids, points):
         task = _task(task_id, overrides, base, f"{source}: task {task_id!r}")
         same = next((i for i, t in seen.items() if (t.scene, t.ida) == (task.scene, task.ida)), None)

@@ -23,6 +23,7 @@ Conventions:
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Callable
 
@@ -271,8 +272,7 @@ def paper_figures(result) -> list[tuple[str, Callable[[], Figure]]]:
     ]
     for key, t in MIXING_TIMES.items():
         number = int(key[3:])
-        specs.append((f"{key}_mixing_t{t:g}.png",
-                      lambda t=t, number=number: mixing_figure(result, t, number)))
+        specs.append((f"{key}_mixing_t{t:g}.png", functools.partial(mixing_figure, result, t, number)))
     specs += [
         ("fig10_temperature_maps.png", lambda: temperature_maps(result, [0.001, None], 10)),
         ("fig11_temperature_maps.png", lambda: temperature_maps(result, [0.05, 0.08], 11)),

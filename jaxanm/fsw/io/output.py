@@ -27,6 +27,7 @@ import logging
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -109,7 +110,7 @@ def spatial_accuracy(result) -> dict | None:
     scene = getattr(result, "scene", None)
     if not isinstance(scene, Scene):
         return None
-    block = {}
+    block: dict[str, Any] = {}
     if scene.has("viscous"):
         width, spacing = axisymmetric.shear_band_width(scene), geometry.edge_spacing(scene.geometry)
         block.update(shear_band_width_m=width, edge_spacing_m=spacing, shear_band_points=width / spacing)
@@ -183,7 +184,7 @@ def probe_oscillation(result, degree: int = 2) -> dict | None:
                and np.count_nonzero((t >= w[0]) & (t <= w[1])) >= OSCILLATION_SAMPLES]
     if not windows:
         return None
-    block = {"windows": [list(w) for w in windows], "degree": degree, "speed": {}, "T": {}}
+    block: dict[str, Any] = {"windows": [list(w) for w in windows], "degree": degree, "speed": {}, "T": {}}
     for name in names:
         p = result.probes[name]
         speed = np.hypot(np.asarray(p["u"], dtype=np.float64), np.asarray(p["v"], dtype=np.float64))
@@ -325,7 +326,7 @@ def write_fields(result, out_dir: str | os.PathLike) -> Path:
     run also stores the computational points as ``nodes`` (S, N, 2).
     """
     path = Path(out_dir) / "fields.npz"
-    arrays = {
+    arrays: dict[str, np.ndarray] = {
         "t": np.asarray(result.t, dtype=np.float64),
         "points": np.asarray(result.points, dtype=np.float64),
         "u": np.asarray(result.u, dtype=np.float64),
@@ -335,9 +336,12 @@ def write_fields(result, out_dir: str | os.PathLike) -> Path:
     }
     if getattr(result, "nodes", None) is not None:
         arrays["nodes"] = np.asarray(result.nodes, dtype=np.float64)
+    # numpy's stub would match the ** dict against savez's keyword allow_pickle (a bool); every
+    # key here is an array's name
+    save: Callable[..., None] = np.savez_compressed
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:  # a file object: np.savez would append ".npz" to a name
-            np.savez_compressed(f, **arrays)
+            save(f, **arrays)
     return path
 
 
