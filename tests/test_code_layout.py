@@ -1,4 +1,5 @@
-"""The layout rules of the package's code (issue 17)."""
+"""The layout rules of the package's code: sizes, the import order, the boundaries between
+modules, one owner for each rule that can be checked."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ MAX_FUNCTION_LINES = 80
 
 def test_no_function_longer_than_80_lines():
     """No function in jaxanm/ exceeds 80 lines, from its ``def`` line to its last line,
-    docstring included (issue 17: a function holds one idea a reader follows in one view;
+    docstring included (a function holds one idea a reader follows in one view;
     a longer one is split into named helpers)."""
     too_long = []
     for path in sorted(PACKAGE.rglob("*.py")):

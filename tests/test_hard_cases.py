@@ -1,4 +1,4 @@
-"""Hard cases stay numerically stable (issue 6): a finite, checked solution or a named error.
+"""Hard cases stay numerically stable: a finite, checked solution or a named error.
 
 The cases live in ``benchmarks/hard_cases.py`` (which also writes the table of
 benchmarks/results/hard_cases.md); here the fast ones run and their outcomes are asserted:

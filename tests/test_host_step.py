@@ -1,4 +1,6 @@
-"""The Lagrangian host step's shortcuts give what the direct computations give (issue 14, item 1)."""
+"""The Lagrangian host step's shortcuts (candidate neighbour lists, the kernel's condition
+bound, the refit on an earlier factorisation, values on the host) give what the direct
+computations give."""
 
 from __future__ import annotations
 

@@ -142,7 +142,7 @@ def reciprocal_condition(points, st, c=0.2):
 # derivative weights come from differentiating that solve twice, each derivative solve adding
 # an error of the same size: 2 x 18 = 36 eps / rcond, relative to sum |w| (the terms summed).
 # Edge points with one-sided supports have rcond down to 1e-6 (RCOND_MIN's note in jaxanm/mls/_shape.py), where a
-# fixed bound of 1e-10 failed on a CPU without AVX-512 (issue 13: 2.8e-2 against 2.3e-2).
+# fixed bound of 1e-10 failed on a CPU without AVX-512 (an error of 2.8e-2 against a bound of 2.3e-2).
 # The closed-form kernel solves through a QR factorisation of sqrt(W) P instead, whose
 # condition number is rcond^(-1/2): the same constant over sqrt(rcond) bounds its error
 # (QR_ERROR, test_closed_form_against_50_digits); SOLVE_ERROR still bounds the reference
