@@ -20,8 +20,8 @@ dy/dtheta``.  The gradient of a loss of the observations is then ``sum_k dL/dy_k
   ``S <- S + K*^-1 (b - J S)`` preconditioned by the factorised K* the step solver already
   holds (stale for the ANM), with exact products ``J S`` from ``jax.jvp``.  It converges at
   the rate ``rho(I - K*^-1 J)``; an ANM series accepted at a = 1 with tolerance eta and order
-  p implies this rate is about ``eta^(1/(p-1))`` or less (0.1 for p = 7, eta = 1e-6; a few
-  per cent measured), Newton's K* is the Jacobian one iterate back (rate ~ 1e-8).  Should the
+  p implies this rate is about ``eta^(1/(p-1))`` or less (0.1 for p = 7, eta = 1e-6), and
+  Newton's K* is the Jacobian one iterate back (the rates measured: docs/notes/gradients.md).  Should the
   refinement stall (rate above 1/2) the Jacobian at x_k is factorised once and installed as
   the solver's K* (counted in ``SensitivityStats.extra_factorizations``).
 

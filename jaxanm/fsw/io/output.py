@@ -101,8 +101,8 @@ def spatial_accuracy(result) -> dict | None:
       ``rise_errors``, the same at every saved time from 0.01 s on (one solve,
       :func:`jaxanm.fsw.axisymmetric.rise_errors`).
 
-    At fsw_paper's dr the band is 0.28 points wide and the rise 15-18 % too high
-    (benchmarks/results/spatial_convergence.md).
+    How many points the shipped clouds put across the band and how far their rise is off:
+    docs/physics/accuracy.md (from benchmarks/results/spatial_convergence.md).
     """
     from jaxanm.fsw import axisymmetric, geometry
     from jaxanm.fsw.scene import Scene
