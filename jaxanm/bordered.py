@@ -36,7 +36,8 @@ from ._factorization import factorize as counted_factorize
 from ._problem import Problem, compiled
 from ._run_inputs import jacobian_kind, on_device, params_float64
 from ._series import AffinePath
-from .errors import InputError, SingularMatrixError, StepFailure, _number
+from .errors import InputError, SingularMatrixError, StepFailure
+from .errors import format_number as _number
 from .jacobian import detect_sparsity
 from .stats import Stats
 
