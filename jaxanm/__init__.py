@@ -25,6 +25,7 @@ from ._x64 import float64
 from .bordered import ContinuationFailure
 from .branch import Branch, BranchPoints
 from .continuation import continuation, newton_continuation
+from .critical import critical_load
 from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
 from .events import Event, StepEnd
 from .jacobian import SparseJacobian, color_columns, detect_sparsity
@@ -59,6 +60,7 @@ __all__ = [
     "StepSolver",
     "color_columns",
     "continuation",
+    "critical_load",
     "detect_sparsity",
     "evaluate_series",
     "factorize",
