@@ -13,6 +13,7 @@ import numpy as np
 from .bordered import ContinuationFailure, ExtendedSystem, Linearisation
 from .branch import STOP_REASONS, Branch
 from .events import StepEnd, StepSeries
+from .stability import StabilityDetector
 from .stats import Stats
 
 
@@ -108,11 +109,13 @@ class Walk:
         rows = self.orders[0] if self.orders else 1
         series = np.array(self.series).reshape(len(self.a), rows, n + 1) if keep_series else None
         events = tuple(sorted(self.events, key=lambda e: e.s))
+        counts = next((d.counts for d in self.detectors if isinstance(d, StabilityDetector)), None)
         return Branch(lam=points[:, -1].copy(), u=points[:, :-1].copy(), a=np.array(self.a),
                       amax=np.array(self.amax) if method == "anm" else None,
                       residual_norm=np.array(self.residual_norms), correction=np.array(self.corrections),
                       tangent=np.array(self.tangents), series=series, scale=self.system.scale, stats=stats,
-                      method=method, stopped=self.stopped, message=self.message, events=events, source=source)
+                      method=method, stopped=self.stopped, message=self.message, events=events, source=source,
+                      unstable=None if counts is None else np.array(counts, dtype=int))
 
 
 def orient(system: ExtendedSystem, lin: Linearisation) -> np.ndarray:

@@ -98,6 +98,11 @@ class Branch:
         Folds, branch points (and what other detectors found), in branch order.
     source : Source or None
         How the branch was made (for :meth:`switch`).
+    unstable : ndarray (S,) of int or None
+        With ``"stability"`` among the events: at each point, how many eigenvalues of R_u have
+        a positive real part, among the :data:`jaxanm.stability.NEV` nearest zero (-1 where
+        none were computed); the steady state is stable where it is 0
+        (:mod:`jaxanm.stability`).  None otherwise.
     """
 
     STOP_REASONS = STOP_REASONS
@@ -117,6 +122,7 @@ class Branch:
     message: str = ""
     events: tuple = ()
     source: Source | None = dataclasses.field(default=None, repr=False, compare=False)
+    unstable: np.ndarray | None = None
 
     @property
     def s(self) -> np.ndarray:

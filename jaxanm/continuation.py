@@ -87,8 +87,8 @@ def continuation(residual: Callable, u0=None, lam0=None, params=None, *, lam_end
         that accuracy and counts in ``stats``); ``release()``, if there, is called before the
         next factorisation; without ``slogdet()`` no branch points are detected.
     events : sequence of str
-        The events to detect (keys of :data:`jaxanm.events.DETECTORS`: ``"fold"``,
-        ``"branch_point"``); ``()`` for none.
+        Keys of :data:`jaxanm.events.DETECTORS`: ``"fold"``, ``"branch_point"``, ``"stability"``
+        (of ``u' = R``: :attr:`Branch.unstable`, Hopf points, :mod:`jaxanm.stability`); or ``()``.
     on_step : callable ``StepEnd -> list of Event``, optional
         Called at every point with the factorisation held there (:class:`jaxanm.events.StepEnd`);
         the events it returns join :attr:`Branch.events`.
@@ -99,8 +99,8 @@ def continuation(residual: Callable, u0=None, lam0=None, params=None, *, lam_end
     Returns
     -------
     Branch
-        Points, series, events, ``stopped`` and ``message``, stats: a step that cannot be
-        completed ends the branch, what was found kept.
+        Points, series, events, ``stopped``, ``message``, stats: a step that cannot be completed
+        ends the branch, what was found kept.
 
     Raises
     ------
