@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
+from . import _checks as checks
 from ._acceptance import CHECK_LIMIT
 from ._factorization import Factorization, counted_solve
 from ._factorization import factorize as counted_factorize
@@ -132,20 +133,16 @@ def check_inputs(residual, u0, lam0, params, *, lam_end, stop_at, max_steps, tol
             raise InputError(f"lam_end equals lam0 = {lam0!r}: the branch would stop where it starts")
         ends.append((n, lam_end))
     if stop_at is not None:
-        if not (isinstance(stop_at, tuple) and len(stop_at) == 2 and isinstance(stop_at[0], (int, np.integer))
-                and -n <= stop_at[0] < n):
+        if not (isinstance(stop_at, tuple) and len(stop_at) == 2):
             raise InputError(f"stop_at must be a pair (index of u in [0, {n}), value), got {stop_at!r}")
-        index = int(stop_at[0]) % n
+        index = checks.integer("stop_at[0]", stop_at[0], -n, n - 1, hint="the index of the monitored unknown") % n
         value = _finite_number("stop_at[1]", stop_at[1], "the value of u[index] where the branch stops")
         if value == u0[index]:
             raise InputError(f"stop_at: u0[{index}] already equals {value!r}; the branch would stop where it starts")
         ends.append((index, value))
-    if not (isinstance(max_steps, (int, np.integer)) and not isinstance(max_steps, bool) and max_steps >= 1):
-        raise InputError(f"max_steps must be an integer >= 1, got {max_steps!r}")
-    if not (isinstance(tol, (int, float, np.floating)) and math.isfinite(tol) and 0 < tol < 1):
-        raise InputError(f"tol must be a float in (0, 1), got {tol!r}; e.g. tol=1e-8")
-    if jacobian not in ("auto", "dense", "sparse"):
-        raise InputError(f"jacobian must be 'auto', 'dense' or 'sparse', got {jacobian!r}")
+    checks.integer("max_steps", max_steps, 1)
+    checks.real("tol", tol, 0.0, 1.0, open_low=True, open_high=True, hint="e.g. tol=1e-8")
+    checks.choice("jacobian", jacobian, ("auto", "dense", "sparse"))
     if sparsity is not None and not (callable(sparsity) or scipy.sparse.issparse(sparsity)):
         raise InputError("sparsity must be a scipy sparse (n, n) pattern of R_u, a callable params -> pattern, or None")
     if scipy.sparse.issparse(sparsity) and sparsity.shape != (n, n):

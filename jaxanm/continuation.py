@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 
 from . import _anm_walk, _newton_walk
+from . import _checks as checks
 from ._walk import Walk, orient
 from ._x64 import entry_point
 from .bordered import ContinuationFailure, ExtendedSystem, check_inputs, corrected_start
@@ -188,27 +189,20 @@ def _check_start_event(system: ExtendedSystem, U0, start: Event) -> np.ndarray:
 
 
 def _check_anm(order, max_step, correct, keep_series):
-    if not (isinstance(order, (int, np.integer)) and not isinstance(order, bool) and order >= 2):
-        raise InputError(f"order must be an integer >= 2, got {order!r}: eq. 26 compares U_1 with U_p "
-                         "(e.g. order=15)")
-    if not (isinstance(max_step, (int, float)) and max_step > 0):
-        raise InputError(f"max_step must be a positive number (np.inf: no cap), got {max_step!r}")
-    for name, flag in (("correct", correct), ("keep_series", keep_series)):
-        if not isinstance(flag, (bool, np.bool_)):
-            raise InputError(f"{name} must be True or False, got {flag!r}")
+    checks.integer("order", order, 2, hint="eq. 26 compares U_1 with U_p (e.g. order=15)")
+    checks.real("max_step", max_step, 0.0, open_low=True, finite=False, hint="np.inf: no cap")
+    checks.flag("correct", correct)
+    checks.flag("keep_series", keep_series)
 
 
 def _check_newton(ds, ds_max, ds_min, max_iter, target_iter):
     for name, value in (("ds", ds), ("ds_max", ds_max), ("ds_min", ds_min)):
-        if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value
-                and (value < np.inf or name == "ds_max")):
-            raise InputError(f"{name} must be a positive finite number (scaled arclength; ds_max may be np.inf), "
-                             f"got {value!r}")
+        checks.real(name, value, 0.0, open_low=True, finite=name != "ds_max",
+                    hint="a scaled arclength; ds_max may be np.inf")
     if not ds_min <= ds <= ds_max:
         raise InputError(f"need ds_min <= ds <= ds_max, got ds_min={ds_min!r}, ds={ds!r}, ds_max={ds_max!r}")
-    for name, value in (("max_iter", max_iter), ("target_iter", target_iter)):
-        if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1):
-            raise InputError(f"{name} must be an integer >= 1, got {value!r}")
+    checks.integer("max_iter", max_iter, 1)
+    checks.integer("target_iter", target_iter, 1)
 
 
 @entry_point

@@ -369,8 +369,6 @@ INLINE_CHECKS_TO_MOVE = {
     "jaxanm/_solver/anm.py": (1, "series rewrites it: ANM.order by integer(), as check_count does"),
     "jaxanm/_solver/newton.py": (1, "series rewrites it: ModifiedNewton.max_rate by real()"),
     "jaxanm/_step_control.py": (2, "schemes rewrites it: the controller's tolerances and bounds by real()"),
-    "jaxanm/bordered.py": (3, "paths rewrites it: max_steps by integer(), tol by real()"),
-    "jaxanm/continuation.py": (5, "paths rewrites it: order, max_step, the event options"),
     "jaxanm/fsw/scene_sections.py": (2, "weld rewrites it: the scene converters' real and integer checks"),
     "jaxanm/ida.py": (5, "schemes rewrites it: t0, rtol, h0, ic_dt, max_steps"),
 }
