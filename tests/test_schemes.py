@@ -254,7 +254,7 @@ def _one_step(x, x_old, t, dt, p):
 @pytest.mark.parametrize("make, match", [
     (lambda: jaxanm.integrate(_one_step, np.ones(1), None, t0=0.0, t1=1.0, dt=0.1, solver=NEWTON,
                               scheme=jaxanm.BDF2()), "cannot use a one-step residual"),
-    (lambda: jaxanm.ESDIRK(order=5), "ESDIRK.order must be one of"),
+    (lambda: jaxanm.ESDIRK(order=5), "ESDIRK.order must be an integer from 3 to 4"),
     (lambda: jaxanm.ESDIRK(order=2), "for order 1 use jaxanm.ImplicitEuler"),
     (lambda: jaxanm.integrate(PROBLEMS["decay"][0], np.ones(1), None, t0=0.0, t1=1.0, dt=0.1, solver=NEWTON,
                               scheme="bdf2"), "scheme must be jaxanm.ImplicitEuler"),

@@ -41,7 +41,7 @@ import dataclasses
 
 import numpy as np
 
-from ..errors import InputError
+from .._checks import integer
 from .base import SchemeStep, TimeScheme, register
 
 
@@ -148,10 +148,9 @@ class ESDIRK(TimeScheme):
     order: int = 3
 
     def __post_init__(self):
-        if isinstance(self.order, bool) or self.order not in TABLEAUS:
-            raise InputError(f"ESDIRK.order must be one of {sorted(TABLEAUS)} (Kværnø's ESDIRK3(2)4 and "
-                             f"ESDIRK4(3)5), got {self.order!r}; for order 1 use jaxanm.ImplicitEuler(), for "
-                             "order 2 jaxanm.BDF2()")
+        integer("ESDIRK.order", self.order, min(TABLEAUS), max(TABLEAUS),
+                hint="Kværnø's ESDIRK3(2)4 and ESDIRK4(3)5; for order 1 use jaxanm.ImplicitEuler(), for order 2 "
+                     "jaxanm.BDF2()")
         object.__setattr__(self, "name", f"esdirk{self.order}")
         object.__setattr__(self, "error_order", self.order - 1)
 

@@ -15,7 +15,7 @@ import dataclasses
 import math
 import re
 
-from .._scheme import scheme_names
+from .. import scheme_names
 from .._solver import make_solver, solver_kinds
 from ..errors import InputError
 
