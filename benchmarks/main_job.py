@@ -129,6 +129,7 @@ def main(argv=None) -> None:
     ap.add_argument("--only", nargs="*", default=None, help="labels to run (default: all)")
     ap.add_argument("--work", default="results/main_job", help="where the runs write their outputs")
     ap.add_argument("--out", default=None, help="write OUT.md and OUT.json")
+    ap.add_argument("--title", default="The main job against fsw_paper", help="the title of OUT.md")
     ap.add_argument("--no-warm", action="store_true", help="skip the untimed first run of each entry")
     ap.add_argument("--keep", default=None, metavar="JSON",
                     help="take the rows of the entries left out by --only from this earlier benchmark's JSON")
@@ -136,7 +137,7 @@ def main(argv=None) -> None:
                     help="rebuild the table from this finished benchmark's JSON and the runs under --work")
     args = ap.parse_args(argv)
     if args.render:
-        return write(render(Path(args.render), Path(args.work)), args.out)
+        return write(render(Path(args.render), Path(args.work)), args.out, args.title)
     entries = [e for e in ENTRIES if args.only is None or e[0] in args.only]
     work = Path(args.work)
 
@@ -163,7 +164,7 @@ def main(argv=None) -> None:
                 if label in rows or label in kept["rows"]}
         meta["kept"] = {"from": args.keep, "entries": [label for label in rows if label not in
                                                       [e[0] for e in entries]], "meta": kept["meta"]}
-    write({"meta": meta, "rows": rows}, args.out)
+    write({"meta": meta, "rows": rows}, args.out, args.title)
 
 
 def render(path: Path, work: Path) -> dict:
@@ -178,7 +179,7 @@ def render(path: Path, work: Path) -> dict:
     return data
 
 
-def write(data: dict, out: str | None) -> None:
+def write(data: dict, out: str | None, title: str = "The main job against fsw_paper") -> None:
     """Print the table; with ``out``, write it to OUT.md and the rows to OUT.json."""
     text = markdown(data["rows"], data["meta"])
     kept = data["meta"].get("kept")
@@ -188,7 +189,7 @@ def write(data: dict, out: str | None) -> None:
                  "run again after a change that the kept entries do not run.\n")
     print(text)
     if out:
-        Path(out + ".md").write_text("# The main job against fsw_paper\n\n"
+        Path(out + ".md").write_text(f"# {title}\n\n"
                                      "Made by `benchmarks/main_job.py`.\n\n" + text)
         Path(out + ".json").write_text(json.dumps(data, indent=1))
 
