@@ -220,7 +220,8 @@ def markdown(results: dict) -> str:
         "u(1/2) = 2 (2D: u = 3 at the centre); truss from rest through both limit points to P = 2 P*. "
         "`limit error`: the fold's lam against the discrete fold solved directly (Bratu), the limit loads "
         "against the closed form (truss), relative to the largest; the folds are the branch's fold events "
-        "(the ANM's from its series unless polished, Newton's polished on the fold's augmented system). Cold: the first call in a fresh process (each case its own; compilation included, "
+        "(the ANM's from its series unless polished, Newton's polished on the fold's augmented system). "
+        "Cold: the first call in a fresh process (each case its own; compilation included, "
         "the import of jaxanm before it not: `import (s)`); warm: the median of the repeats after one "
         "untimed call. The 2D 50 x 50 case gives no pattern: it is found from the residual's jaxpr.",
         "",
