@@ -28,11 +28,12 @@ def test_no_function_longer_than_80_lines():
 FSW_IMPORTS = {
     # the data flow: scene -> geometry -> physics -> discretisation -> (start) -> record -> lagrangian -> simulate
     "scene_sections": set(),
-    "scene": {"scene_sections"},
+    "effects": set(),
+    "scene": {"scene_sections", "effects"},
     "geometry": {"scene"},
-    "physics": {"scene", "geometry"},
-    "discretisation": {"scene", "geometry", "physics"},
-    "start": {"scene", "geometry", "physics", "discretisation"},
+    "physics": {"scene", "geometry", "effects"},
+    "discretisation": {"scene", "geometry", "physics", "effects"},
+    "start": {"scene", "geometry", "physics", "discretisation", "effects"},
     "record": {"scene", "geometry", "discretisation", "start"},
     "lagrangian": {"scene", "geometry", "discretisation", "start", "record"},
     "simulate": {"scene", "geometry", "discretisation", "start", "record", "lagrangian", "stability"},

@@ -168,9 +168,20 @@ def scene_keys_page() -> None:
              "Top level: `name` (a string), `effects` (a list of the names below), "
              "`[[probes]]` (registration points: `name`, `x`, `y`) and `[[sections]]` "
              "(registration lines: `name`, `start`, `end`, `samples`).", "",
-             "## Effects", "", "| effect | needs |", "| --- | --- |"]
-    lines += [f"| `{e}` | {', '.join(f'`{r}`' for r in sc.EFFECT_REQUIRES.get(e, ())) or '—'} |"
-              for e in sc.EFFECTS]
+             "## Effects", "",
+             "One record per effect (`jaxanm.fsw.effects.REGISTRY`): what it needs, what it cannot be "
+             "combined with, its keys (each must keep its default unless the effect is listed) and what "
+             "it adds.", "",
+             "| effect | needs | excludes | keys (range) | adds |", "| --- | --- | --- | --- | --- |"]
+    from jaxanm.fsw.effects import REGISTRY
+
+    def names(items):
+        return ", ".join(f"`{x}`" for x in items) or "—"
+
+    for e in REGISTRY.values():
+        keys = ", ".join(f"`{p.key}` [{p.low:g}, {p.high:g}] {p.unit}" for p in e.parameters) or "—"
+        lines.append(f"| `{e.name}` | {names(e.requires)} | {names(o for o, _ in e.excludes)} | {keys} | "
+                     f"{', '.join(sorted(e.roles)) or '—'} |")
     lines += ["", "What each effect adds to the model: [Equations](../physics/index.md).", ""]
     for section, cls in sc._SECTIONS.items():
         lines += [f"## [{section}]", "", f"Class `jaxanm.fsw.scene.{cls.__name__}`.", "",

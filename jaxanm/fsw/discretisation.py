@@ -17,8 +17,9 @@ import scipy.sparse
 
 from .. import mls
 from .._factorization import sparse_lu
+from .effects import CONSTANTS, REGISTRY, Effects, scene_value
 from .geometry import PLATE_EDGE, Cloud, build_cloud, cloud_stencils, rigid
-from .physics import CONSTANTS, Effects, complete_fields, mu_reference, residual_for
+from .physics import complete_fields, mu_reference, residual_for
 from .scene import Scene
 
 __all__ = ["Discretisation", "Model", "Refit", "discretise", "make_model"]
@@ -53,7 +54,7 @@ class Model:
         return len(self.fields) * self.cloud.size
 
     def constants(self) -> dict:
-        """``params["c"]``: the scalars of :data:`CONSTANTS` as float64 numpy scalars.
+        """``params["c"]``: the scalars of :data:`jaxanm.fsw.effects.CONSTANTS` as float64 numpy scalars.
 
         Scales: velocity ``U = omega R1``; temperature ``Ts = T0`` (see :meth:`scale`);
         viscosity ``mu_ref`` (:func:`mu_reference`).
@@ -63,7 +64,9 @@ class Model:
         values = dict(K=m.K, A=m.A, n=m.n, eps0=m.eps0, rho=m.rho, Cp=m.Cp, k=m.k, beta=m.beta,
                       rho_t=tl.rho, Cp_t=tl.Cp, k_t=tl.k, omega=tl.omega, h=th.h, Ta=th.Ta,
                       T0=th.T0, lam=s.mechanics.penalty, dr=g.dr, U=tl.omega * g.R1, Ts=th.T0,
-                      mu_ref=mu_reference(s), delta=tl.contact_state, U_tr=tl.traverse_speed)
+                      mu_ref=mu_reference(s))
+        # each effect's parameters, from its record (their defaults when the effect is absent)
+        values.update({p.constant: scene_value(s, p.key) for e in REGISTRY.values() for p in e.parameters})
         return {k: np.float64(values[k]) for k in CONSTANTS}
 
     def params(self, points: np.ndarray, stencils: mls.Stencils) -> dict:

@@ -83,47 +83,16 @@ non-integer powers only of strictly positive quantities (``epsbar_reg^2 >= eps0^
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 
 from .. import mls
+from .effects import CONSTANTS, Effects
 from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE
 from .scene import Scene
 
 __all__ = ["CONSTANTS", "Effects", "complete_fields", "mu_reference", "residual_for", "viscosity"]
-
-CONSTANTS = ("K", "A", "n", "eps0", "rho", "Cp", "k", "beta", "rho_t", "Cp_t", "k_t", "omega",
-             "h", "Ta", "T0", "lam", "dr", "U", "Ts", "mu_ref", "delta", "U_tr")
-"""Scalars of ``params["c"]``: material, tool, thermal data, penalty, the scales (``U = omega R1``,
-``Ts``, ``mu_ref``), the contact state ``delta`` and the travel speed ``U_tr``."""
-
-
-class Effects(NamedTuple):
-    """Which terms the residual assembles (static: a new combination compiles a new residual)."""
-
-    viscous: bool
-    inertia: bool
-    softening: bool
-    conduction: bool
-    tool_conduction: bool
-    dissipation: bool
-    robin: bool
-    lagrangian: bool
-    tracers: bool
-    slip: bool = False
-    traverse: bool = False
-
-    @classmethod
-    def of(cls, scene: Scene) -> "Effects":
-        """The effect flags of a scene."""
-        return cls(*(scene.has(name) for name in cls._fields))
-
-    @property
-    def fields(self) -> tuple:
-        """Unknown fields, in layout order."""
-        return (("u", "v") if self.viscous else ()) + (("T",) if self.conduction else ())
 
 
 def mu_reference(scene: Scene) -> float:

@@ -28,6 +28,7 @@ __all__ = [
     "MAX_SAMPLES",
     "MAX_STEPS",
     "Material",
+    "OMEGA_MAX",
     "Mechanics",
     "Probe",
     "SOLVER_KINDS",
@@ -64,6 +65,8 @@ MAX_STEPS = 10_000_000
 MAX_ORDER = 30
 """Largest ANM series order a scene may ask for (the jet series compiles in a time that grows
 steeply with the order: benchmarks/results/hard_cases.md)."""
+OMEGA_MAX = 1000.0
+"""Fastest tool rotation a scene may ask for (rad/s)."""
 MAX_SAMPLES = 100_000
 """Largest number of samples of a registration section."""
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-.+")
@@ -269,14 +272,15 @@ class Material(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class Tool(_Section):
-    """Tool (steel): density, heat capacity, conductivity (SI), rotation speed ``omega`` (rad/s),
-    contact state and travel speed.
+    """Tool (steel): density, heat capacity, conductivity (SI), rotation speed ``omega`` (rad/s,
+    at most :data:`OMEGA_MAX`), contact state and travel speed.
 
     ``contact_state`` (the ``slip`` effect): Schmidt-Hattel's delta in [0, 1], the plate's
     tangential velocity at the tool edge over the tool's, ``delta omega R1``; 1 is sticking
     (the paper's condition), 0 full sliding.  ``traverse_speed`` (the ``traverse`` effect):
     the tool's travel speed U >= 0 (m/s) along +x; the plate streams past it at (-U, 0).
-    Each must keep its default (1 and 0) unless the scene lists its effect.
+    Each must keep its default (1 and 0) unless the scene lists its effect; their ranges are
+    those of their effects' records (:data:`jaxanm.fsw.effects.REGISTRY`), checked with the scene.
     """
 
     _name = "tool"
@@ -289,12 +293,9 @@ class Tool(_Section):
 
     def _validate(self):
         self._positive("rho", "Cp", "k", "omega")
-        _check("tool.contact_state", self.contact_state, 0.0 <= self.contact_state <= 1.0,
-               "must be in [0, 1]: the contact state delta, the plate's speed at the tool edge over the "
-               "tool's (1 sticking, 0 full sliding)")
-        _check("tool.traverse_speed", self.traverse_speed, self.traverse_speed >= 0.0,
-               "must be >= 0 (m/s): the tool travels along +x (travel along -x gives the same "
-               "fields turned by 180 degrees)")
+        _check("tool.omega", self.omega, self.omega <= OMEGA_MAX,
+               f"must be in (0, {OMEGA_MAX:g}] rad/s ({OMEGA_MAX * 30 / math.pi:.0f} rpm, beyond friction stir "
+               "welding practice, 30-300 rad/s)")
 
 
 @dataclasses.dataclass(frozen=True)

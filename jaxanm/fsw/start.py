@@ -46,6 +46,7 @@ from ..continuation import continuation
 from ..errors import StepFailure
 from ..stats import Stats
 from .discretisation import Model, make_model
+from .effects import REGISTRY
 
 __all__ = ["StartReport", "continuation_state", "quasi_static_state"]
 
@@ -116,11 +117,13 @@ def _damped_newton(problem: Problem, x, args: tuple, tol: float, max_iter: int):
 
 
 def flow_scene(scene):
-    """The scene of the stationary flow rows: ``viscous`` alone, with the tool's kinematics
-    kept (``slip``: the plate edge at delta omega; ``traverse``: the ring at (-U, 0), which
-    needs ``tracers``; neither adds a term to the stationary momentum rows)."""
-    kept = [e for e in ("slip", "traverse", "tracers") if scene.has(e) and (e != "tracers" or scene.has("traverse"))]
-    return scene.with_overrides({"effects": ",".join(["viscous", *kept])})
+    """The scene of the stationary flow rows: ``viscous`` with the scene's effects whose records
+    have the role ``"start flow"`` (:data:`jaxanm.fsw.effects.REGISTRY`: the boundary's kinematics,
+    e.g. ``slip``'s plate edge at delta omega, ``traverse``'s ring at (-U, 0)) and what those
+    require (``traverse`` needs ``tracers``, whose transport terms the stationary rows drop with
+    the inertia)."""
+    kept = {"viscous"} | {e for e in scene.effects if "start flow" in REGISTRY[e].roles}
+    return scene.restricted_to(kept | {r for e in kept for r in REGISTRY[e].requires})
 
 
 @entry_point
