@@ -47,6 +47,7 @@ FSW_IMPORTS = {
     "oscillation": set(),
     "compare": set(),
     "energy": {"scene", "geometry", "physics", "discretisation"},
+    "mass_flux": {"energy"},
     "calibration": {"scene", "geometry", "physics", "discretisation", "record"},
     "ida_scene": {"scene", "geometry", "discretisation", "record"},
     "stability": {"geometry", "discretisation"},

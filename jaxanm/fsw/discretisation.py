@@ -18,7 +18,7 @@ import scipy.sparse
 from .. import mls
 from .._factorization import sparse_lu
 from .effects import CONSTANTS, REGISTRY, Effects, scene_value
-from .geometry import PLATE_EDGE, Cloud, build_cloud, cloud_stencils, rigid
+from .geometry import PLATE_EDGE, RING, TOOL_EDGE, Cloud, build_cloud, cloud_stencils, rigid, spacing
 from .physics import complete_fields, mu_reference, residual_for
 from .scene import Scene
 
@@ -61,7 +61,7 @@ class Model:
         """
         s = self.scene
         m, tl, th, g = s.material, s.tool, s.thermal, s.geometry
-        values = dict(K=m.K, A=m.A, n=m.n, eps0=m.eps0, rho=m.rho, Cp=m.Cp, k=m.k, beta=m.beta,
+        values = dict(K=m.K, A=m.A, n=m.n, eps0=s.eps0, rho=m.rho, Cp=m.Cp, k=m.k, beta=m.beta,
                       rho_t=tl.rho, Cp_t=tl.Cp, k_t=tl.k, omega=tl.omega, h=th.h, Ta=th.Ta,
                       T0=th.T0, lam=s.mechanics.penalty, dr=g.dr, U=tl.omega * g.R1, Ts=th.T0,
                       mu_ref=mu_reference(s))
@@ -76,7 +76,19 @@ class Model:
         normal = np.where(r[:, None] > 0, points / np.where(r > 0, r, 1.0)[:, None], 0.0)
         p = {"st": stencils, "c": self.constants(), "xy": points, "kind": self.cloud.kind,
              "partner": self.cloud.partner, "normal": normal}
+        if self.effects.incompressible:
+            p.update(self._pressure_params(points))
         return p
+
+    def _pressure_params(self, points: np.ndarray) -> dict:
+        """The continuity rows' point spacing (the stabilisation's h) and the point that fixes the
+        pressure's level: the leading point of the ring (largest x)."""
+        g, kind = self.scene.geometry, self.cloud.kind
+        h = spacing(g, np.hypot(points[:, 0], points[:, 1]), kind <= TOOL_EDGE)
+        ring = np.flatnonzero(kind == RING)
+        pin = np.zeros(kind.size, dtype=bool)
+        pin[ring[np.argmax(points[ring, 0])]] = True
+        return {"spacing": np.broadcast_to(np.asarray(h, dtype=np.float64), kind.shape).copy(), "pin": pin}
 
     def initial_values(self, points: np.ndarray) -> np.ndarray:
         """Initial field values (N, len(fields)): the tool (and its edge) turning, plate at rest, T0.
@@ -92,7 +104,7 @@ class Model:
         rest_u = -sc.tool.traverse_speed if self.effects.traverse else 0.0
         cols = {"u": np.where(sticking, -omega * points[:, 1], rest_u),
                 "v": np.where(sticking, omega * points[:, 0], 0.0),
-                "T": np.full(len(kind), sc.thermal.T0)}
+                "T": np.full(len(kind), sc.thermal.T0), "p": np.zeros(len(kind))}
         return np.stack([cols[f] for f in self.fields], axis=1)
 
     def fit_state(self, values: np.ndarray, stencils: mls.Stencils, refit: "Refit | None" = None,
@@ -121,7 +133,8 @@ class Model:
         return self.initial_values(points).T.reshape(-1).copy()
 
     def scale(self) -> np.ndarray:
-        """Characteristic magnitude of each unknown: ``omega R1`` for u, v and ``T0`` for T.
+        """Characteristic magnitude of each unknown: ``omega R1`` for u, v, ``T0`` for T and the
+        stress ``mu_ref omega`` for p.
 
         The ANM validity range (eq. 26) and Newton's convergence test use ``x / scale``.
         T is measured by T0 because the viscosity depends on it through ``(T/T0)^A``: a relative
@@ -131,7 +144,7 @@ class Model:
         """
         sc, N = self.scene, self.cloud.size
         per = {"u": sc.tool.omega * sc.geometry.R1, "v": sc.tool.omega * sc.geometry.R1,
-               "T": sc.thermal.T0}
+               "T": sc.thermal.T0, "p": mu_reference(sc) * sc.tool.omega}
         return np.concatenate([np.full(N, per[f]) for f in self.fields])
 
     def sparsity(self, params: dict) -> scipy.sparse.csr_matrix:

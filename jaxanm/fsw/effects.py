@@ -222,6 +222,55 @@ _register(
                                  "by 180 degrees)"),)),
 )
 
+def _incompressible_check(scene) -> list:
+    penalty = scene.mechanics.penalty
+    if penalty != 0.0:
+        return [("mechanics.penalty", penalty,
+                 "must be 0 with 'incompressible': the pressure holds div V = 0 at the points, and a penalty "
+                 "would add lambda grad(div V) on top of it; set mechanics.penalty = 0")]
+    return []
+
+
+_register(
+    Effect("incompressible",
+           "Mass conservation by a pressure: the unknown field p, `-grad p` in the momentum rows (the penalty "
+           "`mechanics.penalty` must be 0) and the continuity rows `div V = alpha h^2 / mu Lap p` at the plate "
+           "points (`alpha` the small pressure stabilisation of equal-order collocation), `p = 0` in the tool "
+           "and at the leading point of the ring.  The through-flow of a travelling tool then passes the pin "
+           "instead of compressing ahead of it.",
+           frozenset({"unknowns", "momentum rows", "start flow"}), requires=("viscous",),
+           excludes=(("lagrangian", _LAGRANGIAN.format(
+               e="incompressible", why="a moving cloud's refit of the pressure is not validated (its circular "
+                                       "flow is divergence-free by symmetry: the penalty suffices there)")),),
+           parameters=(Parameter("mechanics.pressure_stabilisation", "alpha_p", 1e-3, 1.0, "1",
+                                 "alpha of the continuity rows' pressure stabilisation div V = alpha h^2 / mu Lap p "
+                                 "(h the local spacing)"),),
+           fields=("p",), check=_incompressible_check),
+)
+
+def _shoulder_check(scene) -> list:
+    g, radius = scene.geometry, scene.tool.shoulder_radius
+    if not g.R1 < radius <= g.R2:
+        return [("tool.shoulder_radius", radius,
+                 f"must be in (geometry.R1, geometry.R2] = ({g.R1:g}, {g.R2:g}] m: the shoulder covers the plate "
+                 "from the pin outwards")]
+    return []
+
+
+_register(
+    Effect("shoulder",
+           "The tool's shoulder heats the plate's face under it: a heat input per area `tool.shoulder_flux` "
+           "(W/m^2) over R1 < r <= `tool.shoulder_radius`, spread through the plate's thickness "
+           "`geometry.thickness` (the source `q / H` in the plate's heat equation).",
+           frozenset({"heat rows", "heat source"}), requires=("conduction",),
+           parameters=(Parameter("tool.shoulder_flux", "q_sh", 0.0, 1e8, "W/m^2",
+                                 "heat input per area of the plate's face under the shoulder"),
+                       Parameter("tool.shoulder_radius", "R_sh", 1e-4, 0.1, "m", "the shoulder's radius"),
+                       Parameter("geometry.thickness", "H", 1e-4, 0.1, "m",
+                                 "the plate's thickness, through which the shoulder's heat spreads")),
+           check=_shoulder_check),
+)
+
 EFFECTS = tuple(REGISTRY)
 """Effect names a scene may list, in the order of :data:`REGISTRY`."""
 

@@ -191,6 +191,13 @@ class Scene:
                 _check(f"sections[{i}].{key}", pt, math.hypot(*pt) <= g.R2 * (1 + 1e-12),
                        f"must lie in the disc r <= geometry.R2 = {g.R2}")
 
+    @property
+    def eps0(self) -> float:
+        """The strain-rate regularisation the model uses (1/s): ``material.eps0``, or
+        ``material.eps0_relative * tool.omega`` when that is set (:class:`Material`)."""
+        m = self.material
+        return m.eps0_relative * self.tool.omega if m.eps0_relative > 0 else m.eps0
+
     def has(self, effect: str) -> bool:
         """Whether the scene lists ``effect``."""
         return effect in self.effects

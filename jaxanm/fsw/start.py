@@ -71,12 +71,18 @@ class StartReport:
         ``|R|_2`` of the scaled rows at each iterate, the start's first.
     stats : jaxanm.Stats
         Counters and wall time of the solve (factorisations, Jacobians, residuals).
+    path : list of (float, float, int)
+        The points of the path from the tool turning in place at :data:`START_OMEGA` (or the
+        scene's omega if slower) to the scene's omega and travel speed
+        (:func:`quasi_static_state`): ``(omega, U, Newton iterations)`` each; empty when the
+        flow was solved at once.
     """
 
     iterations: int
     step_lengths: list
     residual_norms: list
     stats: Stats
+    path: list = dataclasses.field(default_factory=list)
 
 
 def _line_search(problem: Problem, x, dx, r_norm: float, args: tuple):
@@ -126,31 +132,135 @@ def flow_scene(scene):
     return scene.restricted_to(kept | {r for e in kept for r in REGISTRY[e].requires})
 
 
+def _with_flow(model: Model, flow: Model, x) -> np.ndarray:
+    """The initial unknowns of ``model`` with the fields of the start flow's unknowns ``x`` (of
+    ``flow``: velocity, and pressure with ``incompressible``) in place of their initial values."""
+    x0 = model.initial_state(model.cloud.points).reshape(len(model.fields), -1)
+    solved = np.asarray(x).reshape(len(flow.fields), -1)
+    for k, name in enumerate(flow.fields):
+        x0[model.fields.index(name)] = solved[k]
+    return x0.reshape(-1)
+
+
+START_OMEGA = 20.0
+"""The rotation speed (rad/s) at which the start flow is solved from rest when the scene's tool
+turns faster: damped Newton from rest converges at 10-50 rad/s on the shipped clouds, and not at
+200 rad/s (the regularised law's slow zone, where the strain rate is within a decade of eps0,
+then lies where the first Newtonian update overshoots: docs/notes/traverse_and_slip.md)."""
+
+PATH_ITERATIONS = 12
+"""Newton iterations allowed at a point of the start flow's path before its step is halved."""
+
+PATH_TOL = 1e-8
+"""Newton's tolerance (scaled change) at the path's intermediate points; the end is solved to the
+start's own ``tol``."""
+
+MIN_PATH_STEP = 2.0 ** -12
+"""Shortest step of the path (a fraction of its length): below it the path stops, named."""
+
+
+@dataclasses.dataclass
+class _Leg:
+    """One leg of the start flow's path: a constant of ``params["c"]`` from ``begin`` to ``end``,
+    geometrically (``omega``) or linearly (``U_tr``)."""
+
+    constant: str
+    begin: float
+    end: float
+
+    def at(self, s: float) -> float:
+        if s >= 1.0:
+            return self.end
+        if self.constant == "omega":
+            return self.begin * (self.end / self.begin) ** s
+        return self.begin + (self.end - self.begin) * s
+
+    def name(self, value: float, c: dict) -> str:
+        if self.constant == "omega":
+            return f"omega = {value:.4g} rad/s"
+        advance = 2e3 * np.pi * value / float(c["omega"])
+        return f"U = {value:.4g} m/s (an advance of {advance:.3g} mm per revolution at omega = {float(c['omega']):g})"
+
+
+def _follow(problem: Problem, x, params: dict, leg: _Leg, report: StartReport) -> np.ndarray:
+    """The flow at the end of ``leg`` from ``x`` (the flow at its beginning): damped Newton at points
+    of the leg, each started from the secant through the last two; a point that fails halves the
+    step, one that converges in few iterations doubles it.  Extends ``report``."""
+    one = np.float64(1.0)
+    s, step, last = 0.0, 0.25, None
+    while s < 1.0:
+        t = min(1.0, s + step)
+        guess = x  # TEST
+        p = dict(params, c=dict(params["c"], **{leg.constant: np.float64(leg.at(t))}))
+        try:
+            y, done = _damped_newton(problem, guess, (guess, one, one, p), PATH_TOL, PATH_ITERATIONS)
+        except StepFailure:
+            step *= 0.5
+            if step < MIN_PATH_STEP:
+                raise StepFailure(
+                    f"the start flow's path stopped at {leg.name(leg.at(s), p['c'])}: no flow found a step "
+                    f"of {step * 2:.2g} of the leg further on; the cloud does not resolve the flow beyond "
+                    f"(refine geometry.dr and geometry.dr_far, or lower the speed)", step=0, t=0.0) from None
+            continue
+        report.iterations += done.iterations
+        report.step_lengths += done.step_lengths
+        report.residual_norms += done.residual_norms[1:]
+        report.path.append((float(p["c"]["omega"]), float(p["c"]["U_tr"]) if "U_tr" in p["c"] else 0.0,
+                            done.iterations))
+        last, x, s = (s, x), y, t
+        if done.iterations <= 4:
+            step *= 2.0
+    return x
+
+
 @entry_point
 def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_iter: int = 50):
     """Initial unknowns of ``model`` with the quasi-static flow at T0; returns ``(x0, StartReport)``.
 
-    The velocity is the root of the stationary momentum rows at T = T0 on the model's cloud
-    and ``stencils`` (:func:`jaxanm.fsw.discretisation.make_model` of the scene with ``viscous`` alone,
-    whose rows are the scene's without the inertia term), from rest, to ``tol`` in the
-    scaled change of a full Newton step (1e-8: Newton converges quadratically there, so the
-    state is then a root to round-off, and the first step only adds the change of its own
-    time step); T = T0.  Raises :class:`jaxanm.StepFailure` if the iteration does not
-    converge in ``max_iter`` Newton iterations or its line search finds no decrease.
-    The report's ``stats.wall_time_s`` is the whole start, compilation included.
+    The velocity (and pressure, with ``incompressible``) is the root of the stationary momentum
+    rows at T = T0 on the model's cloud and ``stencils`` (:func:`flow_scene`: the scene's rows
+    without the inertia term), to ``tol`` in the scaled change of a full Newton step (1e-8:
+    Newton converges quadratically there, so the state is then a root to round-off, and the
+    first step only adds the change of its own time step); T = T0.
+
+    The tool turning in place at ``min(omega, START_OMEGA)`` is solved from rest by damped
+    Newton; a faster tool, and a travelling one, are then reached along a path (the ANM's
+    home regime, here by damped Newton at points of it): omega up to the scene's
+    (geometrically), then the travel speed from 0 up to the scene's.  From rest, the damped
+    iteration stalls where the plate streams past the turning tool (the slow zones of the
+    regularised law move with every update), and at a fast tool; along the path each point
+    starts next to its root.  The report's ``path`` lists the points.
+
+    Raises :class:`jaxanm.StepFailure` if the iteration from rest does not converge in
+    ``max_iter`` Newton iterations or its line search finds no decrease, or if the path stops
+    (the message names the speed it reached).  The report's ``stats.wall_time_s`` is the whole
+    start, compilation included.
     """
     began = time.perf_counter()
     flow = make_model(flow_scene(scene), model.cloud)
     params = flow.params(model.cloud.points, stencils)
     problem = Problem(flow.residual, flow.scale(), Stats(), "sparse", flow.sparsity)
-    rest = flow.initial_state(model.cloud.points)
+    c = params["c"]
+    legs = [_Leg("omega", min(float(c["omega"]), START_OMEGA), float(c["omega"]))]
+    if flow.effects.traverse:
+        legs.append(_Leg("U_tr", 0.0, float(c["U_tr"])))
+    first = scene.with_overrides({"tool.omega": legs[0].begin, **({"tool.traverse_speed": 0.0}
+                                                                  if flow.effects.traverse else {})})
+    begin = make_model(flow_scene(first), model.cloud)
+    rest = begin.initial_state(model.cloud.points)
     one = np.float64(1.0)  # t and dt: the rows hold no time derivative
-    velocity, report = _damped_newton(problem, rest, (rest, one, one, params), tol, max_iter)
-    x0 = model.initial_state(model.cloud.points).reshape(len(model.fields), -1)
-    for k, name in enumerate(("u", "v")):
-        x0[model.fields.index(name)] = velocity.reshape(2, -1)[k]
+    start = dict(params, c=dict(c, **{leg.constant: np.float64(leg.begin) for leg in legs}))
+    x, report = _damped_newton(problem, rest, (rest, one, one, start), tol, max_iter)
+    for leg in legs:
+        if leg.end != leg.begin:
+            later = {g.constant: np.float64(g.begin) for g in legs[legs.index(leg) + 1:]}
+            x = _follow(problem, x, dict(params, c=dict(c, **later)), leg, report)
+    if report.path:  # the end of the path to the start's own tolerance
+        x, end = _damped_newton(problem, x, (x, one, one, params), tol, max_iter)
+        report.iterations += end.iterations
+        report.step_lengths += end.step_lengths
     report.stats.close(time.perf_counter() - began)
-    return x0.reshape(-1), report
+    return _with_flow(model, flow, x), report
 
 
 CONTINUATION_RATIO = 1e3
@@ -187,7 +297,7 @@ def continuation_state(scene, model: Model, stencils, order: int = 15, tol: floa
     params = flow.params(model.cloud.points, stencils)
     rest = flow.initial_state(model.cloud.points)
     params["rest"] = rest
-    lam0 = -float(np.log(CONTINUATION_RATIO * scene.tool.omega / scene.material.eps0))
+    lam0 = -float(np.log(CONTINUATION_RATIO * scene.tool.omega / scene.eps0))
     found = continuation(
         _regularised_flow(flow.residual), rest, lam0, params, lam_end=0.0, order=order, tol=tol,
         scale=flow.scale(), sparsity=flow.sparsity(params), max_steps=max_steps)
@@ -195,9 +305,7 @@ def continuation_state(scene, model: Model, stencils, order: int = 15, tol: floa
         raise StepFailure(f"the continuation start flow stopped at lam = {found.lam[-1]:.3g} ({found.stopped}) "
                           f"after {len(found.lam) - 1} steps, short of lam = 0", step=0, t=0.0,
                           residual_norm=float(found.residual_norm[-1]))
-    x0 = model.initial_state(model.cloud.points).reshape(len(model.fields), -1)
-    for k, name in enumerate(("u", "v")):
-        x0[model.fields.index(name)] = found.u[-1].reshape(2, -1)[k]
+    x0 = _with_flow(model, flow, found.u[-1])
     found.stats.close(time.perf_counter() - began)
     report = StartReport(len(found.lam) - 1, np.diff(found.lam).tolist(), found.residual_norm.tolist(), found.stats)
-    return x0.reshape(-1), report
+    return x0, report
