@@ -48,6 +48,7 @@ FSW_IMPORTS = {
     "compare": set(),
     "energy": {"scene", "geometry", "physics", "discretisation"},
     "mass_flux": {"energy"},
+    "manufactured": {"discretisation", "geometry", "physics"},
     "calibration": {"scene", "geometry", "physics", "discretisation", "record"},
     "ida_scene": {"scene", "geometry", "discretisation", "record"},
     "stability": {"geometry", "discretisation"},

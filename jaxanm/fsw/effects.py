@@ -234,7 +234,7 @@ def _incompressible_check(scene) -> list:
 _register(
     Effect("incompressible",
            "Mass conservation by a pressure: the unknown field p, `-grad p` in the momentum rows (the penalty "
-           "`mechanics.penalty` must be 0) and the continuity rows `div V = alpha h^2 / mu Lap p` at the plate "
+           "`mechanics.penalty` must be 0) and the continuity rows `div V = alpha h^2 / mu_ref Lap p` at the plate "
            "points (`alpha` the small pressure stabilisation of equal-order collocation), `p = 0` in the tool "
            "and at the leading point of the ring.  The through-flow of a travelling tool then passes the pin "
            "instead of compressing ahead of it.",
@@ -243,8 +243,8 @@ _register(
                e="incompressible", why="a moving cloud's refit of the pressure is not validated (its circular "
                                        "flow is divergence-free by symmetry: the penalty suffices there)")),),
            parameters=(Parameter("mechanics.pressure_stabilisation", "alpha_p", 1e-3, 1.0, "1",
-                                 "alpha of the continuity rows' pressure stabilisation div V = alpha h^2 / mu Lap p "
-                                 "(h the local spacing)"),),
+                                 "alpha of the continuity rows' pressure stabilisation div V = alpha h^2 / mu_ref "
+                                 "Lap p (h the local spacing)"),),
            fields=("p",), check=_incompressible_check),
 )
 

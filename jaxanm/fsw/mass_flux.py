@@ -23,7 +23,7 @@ import numpy as np
 
 from .energy import fields_at
 
-__all__ = ["SECTIONS", "CIRCLES", "circle_flux", "flux_table", "section_flux"]
+__all__ = ["SECTIONS", "CIRCLES", "circle_flux", "flux_table", "section_flux", "section_rule"]
 
 SECTIONS = (-5.0, -3.0, -1.5, -0.75, 0.0, 0.75, 1.5, 3.0, 5.0)
 """The default table's sections ``x = f R2 / 6`` (-5 mm ... 5 mm for R2 = 6 mm)."""
@@ -42,20 +42,26 @@ def _segment_rule(a: float, b: float, cells: int = 120, order: int = 4, towards_
     return ((lo + hi) / 2 + (hi - lo) / 2 * xg).ravel(), ((hi - lo) / 2 * wg).ravel()
 
 
-def section_flux(result, s: int, x: float) -> float:
-    """Volume flux (m^2/s, per unit thickness) in the direction -x through the plate's part of
-    the section ``x`` = const at saved step ``s`` (the direction the plate streams past a
-    travelling tool)."""
-    g = result.scene.geometry
+def section_rule(geometry, x: float) -> tuple:
+    """Points (M, 2) and weights (M,) of the quadrature along the plate's part of the section
+    ``x`` = const (two segments from the tool edge outwards when it crosses the tool)."""
+    g = geometry
     top = math.sqrt(max(g.R2 * g.R2 - x * x, 0.0))
-    if abs(x) < g.R1:  # two segments, from the tool edge outwards
+    if abs(x) < g.R1:
         low = math.sqrt(g.R1 * g.R1 - x * x)
         y1, w1 = _segment_rule(low, top)
         ys, ws = np.concatenate([y1, -y1]), np.concatenate([w1, w1])
     else:
         ys, ws = _segment_rule(-top, top)
-    u = fields_at(result, s, np.stack([np.full(ys.size, x), ys], axis=1), derivatives=False)["u"]
-    return float(-np.sum(ws * u))
+    return np.stack([np.full(ys.size, x), ys], axis=1), ws
+
+
+def section_flux(result, s: int, x: float) -> float:
+    """Volume flux (m^2/s, per unit thickness) in the direction -x through the plate's part of
+    the section ``x`` = const at saved step ``s`` (the direction the plate streams past a
+    travelling tool)."""
+    points, ws = section_rule(result.scene.geometry, x)
+    return float(-np.sum(ws * fields_at(result, s, points, derivatives=False)["u"]))
 
 
 def circle_flux(result, s: int, r: float, angles: int = 720) -> float:

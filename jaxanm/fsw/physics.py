@@ -191,21 +191,23 @@ def _momentum_rows(flags: Effects, st, p, dt, vel_nodal, vel_old_nodal, temp, pr
 
 
 def _continuity_rows(p, div, mu, pressure):
-    """The pressure rows (``incompressible``): ``div V = alpha h^2 / mu Lap p`` at every plate
+    """The pressure rows (``incompressible``): ``div V = alpha h^2 / mu_ref Lap p`` at every plate
     point (edge and ring included: one-sided derivatives there), ``p = 0`` in the tool (rigid,
     no pressure needed) and at the one plate point ``p["pin"]`` that fixes the pressure's level
     (only its gradient enters the momentum rows).  Scaled by ``dr / U`` (continuity) and by the
     stress scale ``mu_ref omega`` (``p = 0``).
 
     ``alpha = c["alpha_p"]`` (``mechanics.pressure_stabilisation``) is Brezzi and Pitkaranta's
-    stabilisation, ``h`` the local point spacing: without it, equal-order MLS collocation has a
+    stabilisation, ``h`` the local point spacing, ``mu_ref`` the viscosity scale (the local mu
+    would weaken it in the slow, stiff zones where the mode lives, and strengthen it next to
+    the tool, where it costs accuracy): without it, equal-order MLS collocation has a
     pressure mode that alternates from ring to ring where the rings are coarse, invisible to the
     momentum rows (a quadratic fit has no gradient at a point whose neighbours on both sides
     carry the opposite value) and to the continuity rows.  Its measurements (the pressure Schur
     complement's smallest singular value, the flux error it adds): docs/notes/traverse_and_slip.md."""
     c, kind = p["c"], p["kind"]
     h = p["spacing"]
-    row = (div - c["alpha_p"] * h * h / mu * pressure[3]) * (c["dr"] / c["U"])
+    row = (div - c["alpha_p"] * h * h / c["mu_ref"] * pressure[3]) * (c["dr"] / c["U"])
     return jnp.where((kind == TOOL) | (kind == TOOL_EDGE) | p["pin"], pressure[0] / (c["mu_ref"] * c["omega"]), row)
 
 

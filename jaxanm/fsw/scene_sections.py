@@ -355,7 +355,7 @@ class Mechanics(_Section):
     """Penalty factor ``lambda`` (Pa s) of ``p = -lambda tr(epsdot)`` (paper eq. 9), and the flow at t = 0.
 
     ``pressure_stabilisation`` (the ``incompressible`` effect, whose record gives its range): the
-    ``alpha`` of the continuity rows ``div V = alpha h^2 / mu Lap p``; the penalty is then 0.
+    ``alpha`` of the continuity rows ``div V = alpha h^2 / mu_ref Lap p``; the penalty is then 0.
 
     ``start``: ``"rest"`` (the default: the plate at rest, the tool turning; the first step's
     iteration starts there), ``"quasi_static"`` (the stationary flow the momentum rows hold
