@@ -7,6 +7,8 @@ integrals are taken here on a fine polar Gauss grid of the MLS fields, not on th
 the fields are refitted on the result's points (:meth:`Model.fit_state`) and evaluated there.
 
 - :func:`stored_heat`: ``int rho Cp (T - T0) dA`` over plate and tool.
+- :func:`tool_torque`: the torque the tool exerts on the plate, from the shear stress of the
+  MLS velocity on the plate's side of the tool edge; times omega, the mechanical power.
 - :func:`dissipated_power`: ``int 3 mu epsbar^2 dA`` of the discrete velocity field, with the
   scene's viscosity law (``beta`` times it heats the material).  It is computed from the
   velocity and the constitutive law alone, independently of the heat rows, so
@@ -25,7 +27,7 @@ from .discretisation import make_model
 from .geometry import build_cloud, cloud_stencils, evaluate_stencils
 from .physics import complete_fields, viscosity
 
-__all__ = ["annulus_quadrature", "dissipated_power", "fields_at", "stored_heat"]
+__all__ = ["annulus_quadrature", "dissipated_power", "fields_at", "stored_heat", "tool_torque"]
 
 
 def annulus_quadrature(r_in: float, r_out: float, cells: int = 60, angles: int = 64):
@@ -98,3 +100,25 @@ def dissipated_power(result, s: int = -1) -> float:
     T = f["T"] if scene.has("softening") else scene.thermal.T0
     mu = viscosity(T, e2 + scene.eps0 ** 2, m.K, m.A, m.n)
     return float(np.sum(w * 3.0 * mu * e2))
+
+
+def tool_torque(result, s: int = -1, angles: int = 720) -> float:
+    """The torque (N m/m, per unit thickness) the tool exerts on the plate at saved step ``s``:
+    ``-int R1^2 tau_r_theta dtheta`` on the plate's side of the tool edge, ``tau_r_theta = 2 mu
+    e_r_theta`` from the one-sided MLS derivatives there and the scene's viscosity law (T at the
+    edge with ``softening``).  Times omega it is the tool's mechanical power, which the plastic
+    dissipation (:func:`dissipated_power`) and, with ``slip``, the interface's friction take up.
+    """
+    scene = result.scene
+    g, m = scene.geometry, scene.material
+    th = 2.0 * math.pi * (np.arange(angles) + 0.5) / angles
+    nx, ny = np.cos(th), np.sin(th)
+    f = fields_at(result, s, g.R1 * (1.0 + 1e-9) * np.stack([nx, ny], axis=1))
+    if "ux" not in f:
+        return 0.0
+    exy = 0.5 * (f["uy"] + f["vx"])
+    e_rt = nx * ny * (f["vy"] - f["ux"]) + exy * (nx * nx - ny * ny)
+    e2 = (2.0 / 3.0) * (f["ux"] ** 2 + f["vy"] ** 2 + 2.0 * exy ** 2)
+    T = f["T"] if scene.has("softening") else scene.thermal.T0
+    mu = viscosity(T, e2 + scene.eps0 ** 2, m.K, m.A, m.n)
+    return float(-np.sum(2.0 * mu * e_rt) * g.R1 ** 2 * 2.0 * math.pi / angles)
