@@ -30,6 +30,7 @@ FSW_IMPORTS = {
     "scene_sections": set(),
     "effects": set(),
     "scene": {"scene_sections", "effects"},
+    "scene_text": set(),
     "geometry": {"scene"},
     "physics": {"scene", "geometry", "effects"},
     "discretisation": {"scene", "geometry", "physics", "effects"},
