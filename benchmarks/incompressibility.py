@@ -37,7 +37,6 @@ import scipy.sparse.linalg as spla
 
 import jaxanm
 from jaxanm import mls
-from jaxanm._problem import Problem
 from jaxanm.fsw.discretisation import discretise
 from jaxanm.fsw.geometry import PLATE_EDGE, evaluate_stencils
 from jaxanm.fsw.manufactured import errors, observed_orders
@@ -45,6 +44,7 @@ from jaxanm.fsw.mass_flux import section_rule
 from jaxanm.fsw.physics import mu_reference
 from jaxanm.fsw.scene import load_scene
 from jaxanm.fsw.start import quasi_static_state
+from jaxanm.internal import Problem
 from jaxanm.stats import Stats
 
 FLOW = "viscous,tracers,traverse"

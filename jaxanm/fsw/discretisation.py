@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse
 
 from .. import mls
-from .._factorization import sparse_lu
+from ..internal import sparse_lu
 from .effects import CONSTANTS, REGISTRY, Effects, scene_value
 from .geometry import PLATE_EDGE, RING, TOOL_EDGE, Cloud, build_cloud, cloud_stencils, rigid, spacing
 from .physics import complete_fields, mu_reference, residual_for

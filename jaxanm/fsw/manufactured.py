@@ -32,7 +32,7 @@ import numpy as np
 import jaxanm
 
 from .. import mls
-from .._x64 import entry_point
+from ..internal import entry_point
 from .discretisation import discretise
 from .geometry import PLATE, PLATE_EDGE, TOOL, TOOL_EDGE
 from .physics import mu_reference
@@ -91,8 +91,8 @@ def exact_rows(model, params: dict, f) -> np.ndarray:
     taylor = _taylor(f, pts)  # (3, 6, N)
     index = (np.arange(6)[None, :] * N + np.arange(N)[:, None]).astype(np.int32)
     index = np.concatenate([index, np.repeat(np.arange(N, 6 * N, dtype=np.int32)[:, None], 6, axis=1)])
-    weights = [np.concatenate([np.tile(np.eye(6)[k], (N, 1)), np.zeros((5 * N, 6))]) for k in range(6)]
-    st = mls.Stencils(index=index, phi=weights[0], dx=weights[1], dy=weights[2], dxx=weights[3],
+    weights = [jnp.asarray(np.concatenate([np.tile(np.eye(6)[k], (N, 1)), np.zeros((5 * N, 6))])) for k in range(6)]
+    st = mls.Stencils(index=jnp.asarray(index), phi=weights[0], dx=weights[1], dy=weights[2], dxx=weights[3],
                       dxy=weights[4], dyy=weights[5])
     order = {"u": 0, "v": 1, "p": 2}
     x = np.concatenate([taylor[order[name]].reshape(-1) for name in model.fields])

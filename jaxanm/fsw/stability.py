@@ -42,7 +42,7 @@ import scipy.linalg
 
 import jaxanm
 
-from .._x64 import entry_point
+from ..internal import entry_point
 from .discretisation import Model
 from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE
 

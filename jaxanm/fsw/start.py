@@ -39,11 +39,9 @@ import time
 
 import numpy as np
 
-from .._factorization import factorize
-from .._problem import Problem, _relative_change
-from .._x64 import entry_point
 from ..continuation import continuation
 from ..errors import StepFailure
+from ..internal import Problem, entry_point, factorize, relative_change
 from ..stats import Stats
 from .discretisation import Model, make_model
 from .effects import REGISTRY
@@ -115,7 +113,7 @@ def _damped_newton(problem: Problem, x, args: tuple, tol: float, max_iter: int):
         a, x, r = found
         lengths.append(a)
         norms.append(float(np.linalg.norm(r)))
-        if a == 1.0 and _relative_change(problem, dx, x) <= tol:
+        if a == 1.0 and relative_change(problem, dx, x) <= tol:
             return x, StartReport(it, lengths, norms, problem.stats)
     raise StepFailure(f"the quasi-static start flow did not converge in {max_iter} iterations "
                       f"(|R|_2 = {norms[-1]:.3g}, last step length {lengths[-1]:g})", step=0, t=0.0,
