@@ -87,7 +87,7 @@ class SeriesPath:
         self._path: AffinePath | None = None
 
     def _affine_path(self, f0=None) -> AffinePath:
-        """The series along this path (``f0``: the frontier at ``d_s`` when already known)."""
+        """The series along this path (``f0``: its state at ``d_s`` when already made)."""
         return AffinePath(self._fns, self._d_s, self._args, f0=f0, lookahead=self._lookahead,
                           max_terms=self._max_terms)
 
@@ -97,7 +97,7 @@ class SeriesPath:
         if self._fns is None:
             return P.residual(self._d_s, *self._args)
         with P.stats.timer("series"):
-            r, f0 = self._fns.residual_and_frontier(self._d_s, *self._args)
+            r, f0 = self._fns.start(self._d_s, *self._args)
             self._path = self._affine_path(f0)
             r = np.asarray(r)
         P.stats.residual_evaluations += 1
