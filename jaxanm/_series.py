@@ -88,8 +88,7 @@ class AffinePath:
     def __init__(self, functions: "AffineFunctions", x0, args: tuple, f0=None, lookahead: bool = False,
                  max_terms: int | None = None):
         self._fn, self._lookahead = functions, bool(lookahead)
-        # the point and the arguments go to the device once, not at every order
-        self._x0, self._args = jax.device_put((x0, args))
+        self._x0, self._args = x0, args
         first, self._values = functions.start(self._x0, *self._args)[1] if f0 is None else f0
         size = START_ORDERS if max_terms is None else max_terms + 1 + self._lookahead
         self._orders = [first] + [functions.zeros] * (size - 1)

@@ -287,11 +287,11 @@ class PathSeries:
 
     The coefficients come from :class:`~jaxanm._series.AffinePath` (the affine part by a linear
     map, the rest by incremental Taylor arithmetic, one compilation for every order, shared by
-    every step of every branch with this residual and shapes): with ``lookahead`` it returns the coefficient of order k + 1 along
-    the path with the provisional ``U_(k+1) = U_k``, which is ``F_(k+1) + R_U U_k``; the
-    linear term is taken off by a product with the assembled tangent (exact, whatever solved
-    for ``U_k``).  A residual that cannot be split gets a jet of the whole residual with a
-    zero last term, compiled per number of terms.
+    every step of every branch with this residual and shapes): with ``lookahead`` it returns
+    the coefficient of order k + 1 along the path with the provisional ``U_(k+1) = U_k``, which
+    is ``F_(k+1) + R_U U_k``; the linear term is taken off by a product with the assembled
+    tangent (exact, whatever solved for ``U_k``).  A residual that cannot be split gets a jet of
+    the whole residual with a zero last term, compiled per number of terms.
     """
 
     def __init__(self, system: ExtendedSystem, point, max_terms: int):
