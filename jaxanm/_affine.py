@@ -22,9 +22,11 @@ calls that were not inlined) is "rest", which is always correct, only slower.
 
 from __future__ import annotations
 
+import collections
 from typing import Callable, NamedTuple
 
 import jax
+import jax.numpy as jnp
 from jax import lax
 from jax.extend import core as jex_core
 
@@ -145,6 +147,13 @@ def _evaluate(env: dict, eqns) -> None:
             env[var] = val
 
 
+MAX_SPLITS = 16
+"""Splits :func:`split_affine` keeps (the most recently made), by function and argument layout:
+the sparse tangent and the series of one run split the same residual."""
+
+_splits: collections.OrderedDict = collections.OrderedDict()
+
+
 def split_affine(fun: Callable, x, *args, scalar_factors_affine: bool = True) -> AffineSplit:
     """Trace ``fun(x, *args)`` (nested ``jit`` calls inlined) and split it at the affine frontier.
 
@@ -152,8 +161,23 @@ def split_affine(fun: Callable, x, *args, scalar_factors_affine: bool = True) ->
     functions take ``(x, *args)`` and ``(frontier, *args)`` with ``args`` of the same structure.
     ``scalar_factors_affine=False`` leaves products and quotients by scalar constants (a time
     step, a material constant) to the rest: the linear map then depends only on the array
-    arguments (stencil weights), which a tangent can cache (:mod:`jaxanm.jacobian`).
+    arguments (stencil weights), which a tangent can cache (:mod:`jaxanm.jacobian`).  The
+    split of a function (by identity) for one layout of its arguments is made once and kept
+    (:data:`MAX_SPLITS`).
     """
+    leaves, tree = jax.tree_util.tree_flatten((x, args))
+    key = (fun, scalar_factors_affine, tree,
+           tuple((jnp.shape(v), str(jnp.result_type(v)), bool(getattr(v, "weak_type", False))) for v in leaves))
+    if key not in _splits:
+        if len(_splits) >= MAX_SPLITS:
+            _splits.popitem(last=False)
+        _splits[key] = _split(fun, x, args, scalar_factors_affine)
+    _splits.move_to_end(key)
+    return _splits[key]
+
+
+def _split(fun: Callable, x, args: tuple, scalar_factors_affine: bool) -> AffineSplit:
+    """:func:`split_affine`, made."""
     closed = _trace(fun, x, args)
     jaxpr, consts = closed.jaxpr, closed.consts
     kinds, affine = _classify(jaxpr, scalar_factors_affine)

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse
 
 from ._factorization import Factorization, counted_solve, factorize
-from ._series import AffineFunctions, AffinePath, path_coefficients
+from ._series import AffineFunctions, AffinePath, orders_kept, path_coefficients
 from .errors import NonFiniteError, SingularMatrixError, StepFailure
 from .jacobian import SparseJacobian, dense_jacobian_function
 from .stats import Stats
@@ -84,6 +84,8 @@ class SeriesPath:
         self._terms: list[np.ndarray] = []
         with problem.stats.timer("series"):
             self._fns = problem.affine_functions(d_s, args)
+            if self._fns is not None:
+                self._fns.prepare(d_s, args, orders_kept(max_terms, lookahead), lookahead)
         self._path: AffinePath | None = None
 
     def _affine_path(self, f0=None) -> AffinePath:
@@ -150,9 +152,12 @@ class Problem:
         return self._affine
 
     def residual(self, x, x_old, t, dt, params) -> np.ndarray:
-        """Step residual on the host."""
+        """Step residual on the host: by the series' start program when this run has made one
+        (one compiled program of the residual per run, not two), else the jitted residual."""
         with self.stats.timer("series"):
-            r = np.asarray(self._compiled.residual(x, x_old, t, dt, params))
+            fns = self._affine if isinstance(self._affine, AffineFunctions) else None
+            r = np.asarray(fns.start(x, x_old, t, dt, params)[0] if fns is not None
+                           else self._compiled.residual(x, x_old, t, dt, params))
         self.stats.residual_evaluations += 1
         return r
 

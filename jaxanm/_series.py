@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import jet
 
+from ._compile_ahead import compile_ahead, wait
 from ._taylor import TaylorProgram, mirrored
 from ._x64 import entry_point
 
@@ -89,8 +90,9 @@ class AffinePath:
                  max_terms: int | None = None):
         self._fn, self._lookahead = functions, bool(lookahead)
         self._x0, self._args = x0, args
+        size = orders_kept(max_terms, self._lookahead)
+        functions.prepare(x0, args, size, self._lookahead)
         first, self._values = functions.start(self._x0, *self._args)[1] if f0 is None else f0
-        size = START_ORDERS if max_terms is None else max_terms + 1 + self._lookahead
         self._orders = [first] + [functions.zeros] * (size - 1)
         self._known = 0
 
@@ -100,7 +102,7 @@ class AffinePath:
         k = self._known + 1
         if k + self._lookahead >= len(self._orders):  # no room: twice as much (a new compilation)
             self._orders += [self._fn.zeros] * len(self._orders)
-        fk, self._orders[k] = self._fn.order(self._lookahead)(
+        fk, self._orders[k] = self._fn.order(self._lookahead, len(self._orders))(
             np.int32(k), self._x0, c, self._orders, mirrored(self._orders, self._fn.zeros, k), self._values,
             *self._args)
         self._known = k
@@ -112,20 +114,29 @@ START_ORDERS = 8
 doubles when they are used up)."""
 
 
+def orders_kept(max_terms: int | None, lookahead: bool) -> int:
+    """The orders a path of at most ``max_terms`` path coefficients keeps room for: 0 ..
+    max_terms, one more with ``lookahead`` (:data:`START_ORDERS` when not known)."""
+    return START_ORDERS if max_terms is None else max_terms + 1 + int(lookahead)
+
+
 class AffineFunctions:
     """The compiled pieces of :class:`AffinePath` for one function and one argument layout
     (``x0`` and ``args`` are examples: shapes and pytree structure matter, not values).
 
-    :attr:`start` (``(x0, *args) -> (f(x0), (orders[0], values))``) is compiled once, and
+    :meth:`start` (``(x0, *args) -> (f(x0), (orders[0], values))``) is compiled once, and
     :meth:`order` (``(k, x0, c_k, orders, mirror, values, *args) -> (f_k, orders[k])``, the
     arguments of :meth:`jaxanm._taylor.TaylorProgram.order`) once per number of orders kept,
-    whatever the order k: it is an argument.
+    whatever the order k: it is an argument.  :meth:`prepare` compiles both in the background
+    as soon as a path's layout is known (:mod:`jaxanm._compile_ahead`).  The split is the one
+    the sparse tangent makes (:func:`jaxanm._affine.split_affine` with the scalar factors in the
+    rest, cached): the residual is traced once for both.
     """
 
     def __init__(self, fun: Callable, x0, *args):
         from ._affine import split_affine
 
-        self.split = split = split_affine(fun, x0, *args)
+        self.split = split = split_affine(fun, x0, *args, scalar_factors_affine=False)
         flat, tree = jax.tree_util.tree_flatten(args)
         frontier = jax.eval_shape(split.linear, x0, *args)
         rest = jax.make_jaxpr(lambda values, *leaves: split.rest(values, *jax.tree_util.tree_unflatten(tree, leaves)))
@@ -136,9 +147,33 @@ class AffineFunctions:
             outs, first, values = program.start(split.linear(x0, *args), jax.tree_util.tree_leaves(args))
             return jnp.broadcast_to(outs[0], split.out_shape), (first, values)
 
-        self.start = jax.jit(start)
+        self._start = jax.jit(start)
         self._order = {lookahead: jax.jit(functools.partial(self._coefficient, lookahead))
                        for lookahead in (False, True)}
+        self._compiling: dict = {}  # "start" or (orders kept, lookahead) -> its compilation ahead
+
+    def prepare(self, x0, args: tuple, size: int, lookahead: bool) -> None:
+        """Start compiling, in the background, the start program for ``(x0, *args)`` and the
+        order program for ``size`` orders kept (once each)."""
+        if "start" not in self._compiling:
+            self._compiling["start"] = compile_ahead(self._start, x0, *args)
+        if (size, lookahead) not in self._compiling:
+            first = [jax.ShapeDtypeStruct((len(m), *shape), dtype) for (shape, dtype), m in self.program.history_groups]
+            values = [jax.ShapeDtypeStruct((len(m), *shape), dtype) for (shape, dtype), m in self.program.value_groups]
+            c = jax.ShapeDtypeStruct(np.shape(x0), np.float64)
+            self._compiling[(size, lookahead)] = compile_ahead(
+                self._order[lookahead], np.int32(1), x0, c, [first] * size, [first] * size, values, *args)
+
+    def _ready(self, key) -> None:
+        """Wait for the compilation ahead of ``key``, if one is pending."""
+        if self._compiling.get(key) is not None:
+            wait(self._compiling[key])
+            self._compiling[key] = None
+
+    def start(self, x0, *args):
+        """``(f(x0), (orders[0], values))``: the function's value and the state a path starts from."""
+        self._ready("start")
+        return self._start(x0, *args)
 
     def _coefficient(self, lookahead, k, x0, c, orders, mirror, values, *args):
         """``(f_k, orders[k])`` (``f_{k+1}`` along ``c_{k+1} = c_k`` with ``lookahead``)."""
@@ -152,6 +187,8 @@ class AffineFunctions:
             outs, _ = self.program.order(k + 1, new, orders, mirror, values, leaves)
         return jnp.broadcast_to(outs[0], self.split.out_shape), order_k
 
-    def order(self, lookahead: bool):
-        """The jitted ``(k, x0, c_k, orders, mirror, values, *args) -> (f_k, orders[k])``."""
+    def order(self, lookahead: bool, size: int):
+        """The jitted ``(k, x0, c_k, orders, mirror, values, *args) -> (f_k, orders[k])``, for
+        ``size`` orders kept."""
+        self._ready((size, lookahead))
         return self._order[lookahead]
