@@ -141,7 +141,8 @@ class AffineFunctions:
         frontier = jax.eval_shape(split.linear, x0, *args)
         rest = jax.make_jaxpr(lambda values, *leaves: split.rest(values, *jax.tree_util.tree_unflatten(tree, leaves)))
         self.program = program = TaylorProgram(rest(frontier, *flat), split.n_frontier)
-        self.zeros = jax.jit(program.zeros)()  # the orders not known yet: one buffer, never written
+        # the orders not known yet: one device buffer per group, never written (no compilation)
+        self.zeros = jax.device_put(program.zeros())
 
         def start(x0, *args):
             outs, first, values = program.start(split.linear(x0, *args), jax.tree_util.tree_leaves(args))

@@ -29,6 +29,7 @@ from __future__ import annotations
 from typing import Any, Callable, NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 from jax.experimental import jet
 from jax.extend import core as jex_core
@@ -138,8 +139,8 @@ class TaylorProgram:
         return [_read(env, v) for v in self.closed.jaxpr.outvars], first, values
 
     def zeros(self) -> list:
-        """An order of zeros (to stand for the orders not known yet)."""
-        return [jnp.zeros((len(members), *shape), dtype) for (shape, dtype), members in self.history_groups]
+        """An order of zeros (to stand for the orders not known yet), numpy arrays."""
+        return [np.zeros((len(members), *shape), dtype) for (shape, dtype), members in self.history_groups]
 
     def order(self, k, new_inputs, orders, mirror, values, consts):
         """Coefficient k (traced, 1 <= k < len(orders)) of the outputs from the inputs'
