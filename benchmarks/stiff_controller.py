@@ -29,6 +29,11 @@ controller's defaults, against ``mnewton_8``, ``ModifiedNewton(tol=1e-8)``:
 - ``anm_7_1e-8``: ``ANM(order=7, tol=1e-8)``, as a new user would try it;
 - ``paper_7_1e-8``: ``ANM.paper(order=7, tol=1e-8)``, the paper's solver, the defaults before.
 
+``causes`` (why the paper's ANM factorises more, ``benchmarks/results/anm_defaults_causes.md``):
+from ``ANM.paper(order=7, tol=1e-8)`` to ``ANM(order=7, tol=1e-8)`` one option at a time
+(``criterion="state"``, ``homotopy="newton"``, ``adaptive=True``, ``max_rate=0.5``), and the
+paper's with ``max_rate=0.5`` alone, against ``mnewton_8`` (``--repeats 1``: the counts).
+
 Per problem, every solver runs once first at a loose tolerance (compilation), then the
 configurations run ``--repeats`` times, alternated (all of one repeat before the next), and
 the medians of wall and process (CPU) time are reported with ``os.getloadavg()`` before and
@@ -38,6 +43,7 @@ OREGO, Radau at rtol 1e-12 for the others).
 
     python benchmarks/stiff_controller.py --out benchmarks/results/stiff_controller
     python benchmarks/stiff_controller.py --set defaults --out benchmarks/results/anm_defaults
+    python benchmarks/stiff_controller.py --set causes --repeats 1 --out benchmarks/results/anm_defaults_causes
 
 Writes ``OUT.json`` (every run) and ``OUT.md`` (the tables).  With ``--grid``, instead, one
 run of every solver per (``hold``, ``refactor_ratio``) of :data:`GRID`, the measurements the
@@ -78,13 +84,22 @@ SETS = {
         "paper_7_1e-8": jaxanm.ANM.paper(order=7, tol=1e-8),
         "mnewton_8": jaxanm.ModifiedNewton(tol=1e-8),
     },
+    "causes": {  # from the paper's ANM to the defaults, one option at a time (order 7, tol 1e-8)
+        "paper": jaxanm.ANM.paper(order=7, tol=1e-8),
+        "+state": jaxanm.ANM.paper(order=7, tol=1e-8, criterion="state"),
+        "+newton": jaxanm.ANM.paper(order=7, tol=1e-8, criterion="state", homotopy="newton"),
+        "+adaptive": jaxanm.ANM.paper(order=7, tol=1e-8, criterion="state", homotopy="newton", adaptive=True),
+        "+max_rate": jaxanm.ANM(order=7, tol=1e-8),
+        "paper+max_rate": jaxanm.ANM.paper(order=7, tol=1e-8, max_rate=0.5),
+        "mnewton_8": jaxanm.ModifiedNewton(tol=1e-8),
+    },
 }
 """The solvers of each ``--set``; the last of each is the reference of the ratios."""
 CONTROLLERS = {
     "before": jaxanm.StepController(rtol=RTOL, atol=ATOL, hold=1.0, refactor_ratio=math.inf),
     "after": jaxanm.StepController(rtol=RTOL, atol=ATOL),
 }
-SET_CONTROLLERS = {"controller": ("before", "after"), "defaults": ("after",)}
+SET_CONTROLLERS = {"controller": ("before", "after"), "defaults": ("after",), "causes": ("after",)}
 """The controllers each ``--set`` runs under."""
 GRID = [(1.0, math.inf), (1.0, 1.5), (1.5, math.inf), (1.25, 1.25), (1.5, 1.25), (1.5, 1.5), (1.5, 2.0),
         (2.0, 2.0)]
