@@ -1,7 +1,7 @@
 """Side by side: cost and agreement of `jaxanm run` output directories of the same scene.
 
-Typical use, the ANM and Newton on the paper's scene (each run is a README command; the two
-can run at the same time, one per core)::
+Typical use, the ANM and Newton on the paper's scene (each run is one `jaxanm run` command; the
+two can run at the same time, one per core)::
 
     jaxanm run fsw_paper --out runs/anm
     jaxanm run fsw_paper --solver newton --out runs/newton --checkpoint-every 200

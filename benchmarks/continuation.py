@@ -1,42 +1,50 @@
 """Path following by the ANM against pseudo-arclength Newton: factorisations, steps, series
-orders and wall time on the problems of ``tests/test_continuation.py``.
+orders and wall time, cold and warm, on the problems of ``tests/test_continuation.py``.
 
-- Bratu 1D, ``u'' + lam e^u = 0`` by central differences on N = 19, 39, 79 interior points,
+- Bratu 1D, ``u'' + lam e^u = 0`` by central differences on N = 19, 39, 63, 79 interior points,
   from rest through the fold to u(1/2) = 2 (``stop_at``), u scaled by sqrt(N);
 - the two-bar truss (half-span 1, rise 0.1, EA = 1) from rest through both limit points to
   P = 2 P* on the stiffening branch (``lam_end``);
-- Bratu 2D on the unit square, 5-point Laplacian on 50 x 50 points (2500 unknowns), sparse
-  (coloured Jacobian, SuperLU of the bordered CSC matrix), from rest through the fold to
-  u = 3 at the centre: the regime the API is meant for, where a factorisation costs more.
+- Bratu 2D on the unit square, 5-point Laplacian on 20 x 20 points (400 unknowns, dense) and
+  on 50 x 50 points (2500 unknowns, sparse: coloured Jacobian with its pattern found from the
+  residual's jaxpr, no pattern given; SuperLU of the bordered CSC matrix), from rest through
+  the fold to u = 3 at the centre, u scaled by m.
 
 Methods: :func:`jaxanm.continuation` at orders 8 and 15 (the default), tol 1e-8 (eq. 26), and
-:func:`jaxanm.newton_continuation` with its defaults (tol 1e-8, ds 0.1, ds_max 1, target 4
+:func:`jaxanm.newton_continuation` with its defaults (tol 1e-8, ds 0.1, no ds_max, target 4
 iterations) and with ds_max 0.25 (shorter steps: more factorisations, a closer interpolant).
 Accuracy beside the cost: the Bratu fold from each branch (``limit_points``; for
 Newton from its cubic Hermite interpolant) against the discrete fold solved directly (Newton
 on R = 0, R_u phi = 0, |phi| = 1), the truss's limit loads against the closed form, and the
 largest residual at the points.
 
-Every case runs once cold (its jets compiled on the way: ``first_s``) and then ``--repeats``
-times warm (``wall_s``: the median; ``wall_spread_s``: min and max); ``os.getloadavg()`` is
-recorded before each case.  Counts are what matters: other work shares the machine.
+Cold: each case once in a fresh process (``--cold-case``), the wall of its first call, JAX's
+compilation included (``cold_s``; the import of jaxanm before it, ``import_s``, apart).  Warm:
+in this process, after one untimed call, ``--repeats`` calls (``wall_s``: the median;
+``wall_spread_s``: min and max).  ``os.getloadavg()`` is recorded before each case.  Counts are
+what matters: other work shares the machine.  Run under the machine's timing lock, with
+OpenBLAS on one thread (its second thread waits for a core other work holds on a shared machine:
+benchmarks/bratu_2d_scale.py):
 
-    python benchmarks/continuation.py [--repeats 3] [--out benchmarks/results/continuation]
+    OPENBLAS_NUM_THREADS=1 flock /work/timing.lock python benchmarks/continuation.py [--repeats 3]
+        [--out benchmarks/results/continuation]
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import functools
 import json
 import os
 import pathlib
 import statistics
+import subprocess
+import sys
 import time
 
 import jax.numpy as jnp
 import numpy as np
-import scipy.sparse
 
 import jaxanm
 
@@ -49,6 +57,7 @@ Y_STAR = np.sqrt(L_STAR**2 - L**2)
 P_STAR = 2 * EA * Y_STAR * (1 / L_STAR - 1 / L0)  # closed-form limit load (tests/test_continuation.truss_load)
 
 
+@functools.lru_cache(maxsize=None)
 def bratu(n: int):
     """The discrete Bratu residual on ``n`` interior points."""
     h = 1.0 / (n + 1)
@@ -68,6 +77,7 @@ def truss(u, lam, params):
     return jnp.stack([jnp.sum(n_over_l * dx), -jnp.sum(n_over_l * dy) - lam])
 
 
+@functools.lru_cache(maxsize=None)
 def discrete_fold(n: int) -> float:
     """The discrete Bratu fold by Newton on the extended system (dense numpy)."""
     h = 1.0 / (n + 1)
@@ -91,9 +101,9 @@ def discrete_fold(n: int) -> float:
     return float(lam)
 
 
+@functools.lru_cache(maxsize=None)
 def bratu_2d(m: int):
-    """The 2D Bratu residual on the unit square, 5-point Laplacian on m x m interior points,
-    and the sparsity pattern of R_u."""
+    """The 2D Bratu residual on the unit square, 5-point Laplacian on m x m interior points."""
     h = 1.0 / (m + 1)
 
     def residual(u, lam, params):
@@ -101,9 +111,7 @@ def bratu_2d(m: int):
         lap = (grid[2:, 1:-1] + grid[:-2, 1:-1] + grid[1:-1, 2:] + grid[1:-1, :-2] - 4.0 * grid[1:-1, 1:-1]) / h**2
         return (lap + lam * jnp.exp(grid[1:-1, 1:-1])).ravel()
 
-    line = scipy.sparse.diags([1, 1, 1], [-1, 0, 1], shape=(m, m), dtype=bool)
-    eye = scipy.sparse.eye(m, dtype=bool)
-    return residual, (scipy.sparse.kron(line, eye) + scipy.sparse.kron(eye, line)).astype(bool)
+    return residual
 
 
 METHODS = [
@@ -116,17 +124,22 @@ METHODS = [
 
 def problems():
     """``(name, residual, u0, kwargs, reference limit loads or None, methods)`` of each problem."""
-    for n in (19, 39, 79):
+    for n in (19, 39, 63, 79):
         kwargs = dict(stop_at=(n // 2, 2.0), max_steps=500, scale=np.append(np.full(n, np.sqrt(n)), 1.0))
         yield f"bratu N={n}", bratu(n), np.zeros(n), kwargs, [discrete_fold(n)], METHODS
     kwargs = dict(lam_end=2 * P_STAR, max_steps=500, scale=[H, H, 2 * EA * H**3 / (3 * np.sqrt(3) * L**3)])
     yield "truss", truss, np.zeros(2), kwargs, [P_STAR, -P_STAR], METHODS
-    m = 50
-    residual, pattern = bratu_2d(m)
-    kwargs = dict(
-        stop_at=(m * m // 2 + m // 2, 3.0), max_steps=500, sparsity=pattern, scale=np.append(np.full(m * m, m), 1.0)
-    )
-    yield f"bratu 2D {m}x{m} (sparse)", residual, np.zeros(m * m), kwargs, None, [METHODS[1], METHODS[2]]
+    for m, jacobian in ((20, "dense"), (50, "sparse")):
+        kwargs = dict(stop_at=(m * m // 2 + m // 2, 3.0), max_steps=500, jacobian=jacobian,
+                      scale=np.append(np.full(m * m, m), 1.0))
+        yield f"bratu 2D {m}x{m} ({jacobian})", bratu_2d(m), np.zeros(m * m), kwargs, None, [METHODS[1], METHODS[2]]
+
+
+def cases():
+    """Every (problem, method) pair, in the table's order."""
+    for name, residual, u0, kwargs, reference, methods in problems():
+        for method, options in methods:
+            yield name, residual, u0, kwargs, reference, method, options
 
 
 def run(residual, u0, kwargs, method: str, options: dict):
@@ -136,12 +149,30 @@ def run(residual, u0, kwargs, method: str, options: dict):
     return jaxanm.newton_continuation(residual, u0, 0.0, tol=TOL, **options, **kwargs)
 
 
-def measure(name, residual, u0, kwargs, reference, method, options, repeats: int) -> dict:
-    """Counts, accuracy and times of one case."""
-    load = os.getloadavg()
+def cold(index: int) -> dict:
+    """Case ``index`` run once in a fresh process: the import and first-call walls."""
+    command = [sys.executable, "-c", "import time; start = time.perf_counter(); import jaxanm, sys; "
+               "sys.path.insert(0, sys.argv[1]); import continuation as c; "
+               "imported = time.perf_counter() - start; print(c.first_call(int(sys.argv[2]), imported))",
+               str(HERE), str(index)]
+    done = subprocess.run(command, check=True, capture_output=True, text=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def first_call(index: int, imported: float) -> str:
+    """The wall of case ``index``'s first call in this (fresh) process, as JSON."""
+    name, residual, u0, kwargs, reference, method, options = list(cases())[index]
     start = time.perf_counter()
+    run(residual, u0, kwargs, method, options)
+    return json.dumps({"cold_s": time.perf_counter() - start, "import_s": imported})
+
+
+def measure(index: int, repeats: int) -> dict:
+    """Counts, accuracy and times (cold in a fresh process, warm here) of case ``index``."""
+    name, residual, u0, kwargs, reference, method, options = list(cases())[index]
+    load = os.getloadavg()
+    first = cold(index)
     branch = run(residual, u0, kwargs, method, options)
-    first = time.perf_counter() - start
     walls = []
     for _ in range(repeats):
         start = time.perf_counter()
@@ -168,7 +199,8 @@ def measure(name, residual, u0, kwargs, reference, method, options, repeats: int
         "limit_scale": float(max(abs(r) for r in reference)) if reference is not None else None,
         "max_residual": float(np.max(branch.residual_norm)),
         "end_lam": float(branch.lam[-1]),
-        "first_s": first,
+        "cold_s": first["cold_s"],
+        "import_s": first["import_s"],
         "wall_s": statistics.median(walls),
         "wall_spread_s": [min(walls), max(walls)],
         "wall_split_s": {k: round(v, 4) for k, v in st.wall_time.items()},
@@ -181,21 +213,22 @@ def markdown(results: dict) -> str:
     lines = [
         "# Path following: ANM against pseudo-arclength Newton",
         "",
-        f"Made by `python benchmarks/continuation.py` on {results['date']} ({results['cpus']} CPUs; "
+        f"Made by `{results['command']}` on {results['date']} ({results['cpus']} CPUs; "
         f"load average before each case in the JSON). tol = {TOL:g} for both methods; Newton with its "
-        "defaults (ds 0.1, ds_max 1, 4 iterations targeted). Bratu from rest through the fold to "
-        "u(1/2) = 2; truss from rest through both limit points to P = 2 P*. `limit error`: the "
-        "fold's lam against the discrete fold solved directly (Bratu), the limit loads against the "
-        "closed form (truss), relative to the largest; Newton's come from its cubic Hermite "
-        "interpolant. Wall: median of the warm repeats; first: the first run, with the compilation "
-        "of what the rows above had not compiled (p = 15 reuses the jets of p = 8 up to 8 terms).",
+        "defaults (ds 0.1, no ds_max, 4 iterations targeted). Bratu from rest through the fold to "
+        "u(1/2) = 2 (2D: u = 3 at the centre); truss from rest through both limit points to P = 2 P*. "
+        "`limit error`: the fold's lam against the discrete fold solved directly (Bratu), the limit loads "
+        "against the closed form (truss), relative to the largest; Newton's come from its cubic Hermite "
+        "interpolant. Cold: the first call in a fresh process (each case its own; compilation included, "
+        "the import of jaxanm before it not: `import (s)`); warm: the median of the repeats after one "
+        "untimed call. The 2D 50 x 50 case gives no pattern: it is found from the residual's jaxpr.",
         "",
         "`first limit`: the first limit point's lam (the 2D fold has no direct reference here; the "
         "continuum's is 6.808124 on the unit square).",
         "",
         "| problem | method | steps | factorisations | series orders | solves | Newton iterations "
-        "| first limit | limit error (rel.) | max abs R | first (s) | wall (s) |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| first limit | limit error (rel.) | max abs R | import (s) | cold (s) | warm (s) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in results["cases"]:
         error = "n/a" if r["limit_error"] is None else f"{r['limit_error'] / r['limit_scale']:.1e}"
@@ -203,7 +236,7 @@ def markdown(results: dict) -> str:
             f"| {r['problem']} | {r['method']} | {r['steps']} | {r['factorizations']} | {r['series_orders']} "
             f"| {r['solves']} | {r['newton_iterations']} | {r['limit_loads'][0]:.9g} | {error} "
             f"| {r['max_residual']:.1e} "
-            f"| {r['first_s']:.2f} | {r['wall_s']:.3f} |"
+            f"| {r['import_s']:.2f} | {r['cold_s']:.2f} | {r['wall_s']:.3f} |"
         )
     loads = [r["loadavg"][0] for r in results["cases"]]
     lines += [
@@ -220,22 +253,25 @@ def main():
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", default=str(HERE / "results" / "continuation"))
     args = parser.parse_args()
-    cases = []
-    for name, residual, u0, kwargs, reference, methods in problems():
-        for method, options in methods:
-            case = measure(name, residual, u0, kwargs, reference, method, options, args.repeats)
-            print(
-                f"{name:12s} {method:18s} steps {case['steps']:4d} factorisations {case['factorizations']:4d} "
-                f"series orders {case['series_orders']:5d} limit {case['limit_loads']} "
-                f"first {case['first_s']:.2f} s wall {case['wall_s']:.3f} s",
-                flush=True,
-            )
-            cases.append(case)
-    results = {"date": datetime.date.today().isoformat(), "cpus": os.cpu_count(), "tol": TOL, "cases": cases}
+    results = []
+    for index in range(len(list(cases()))):
+        case = measure(index, args.repeats)
+        print(
+            f"{case['problem']:12s} {case['method']:18s} steps {case['steps']:4d} factorisations "
+            f"{case['factorizations']:4d} series orders {case['series_orders']:5d} limit {case['limit_loads']} "
+            f"cold {case['cold_s']:.2f} s warm {case['wall_s']:.3f} s",
+            flush=True,
+        )
+        results.append(case)
+    threads = os.environ.get("OPENBLAS_NUM_THREADS")
+    command = (f"OPENBLAS_NUM_THREADS={threads} " if threads else "") + \
+        "flock /work/timing.lock python benchmarks/continuation.py " + " ".join(sys.argv[1:])
+    summary = {"date": datetime.date.today().isoformat(), "cpus": os.cpu_count(), "command": command.strip(),
+               "tol": TOL, "cases": results}
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(results, indent=1) + "\n")
-    out.with_suffix(".md").write_text(markdown(results))
+    out.with_suffix(".json").write_text(json.dumps(summary, indent=1) + "\n")
+    out.with_suffix(".md").write_text(markdown(summary))
     print(f"wrote {out}.md and .json")
 
 

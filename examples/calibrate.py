@@ -11,7 +11,8 @@ experiments (initial/ambient temperature T0 and tool speed omega):
 and perturbed by seeded Gaussian noise, 0.01 K on temperatures and 1e-5 m/s on velocities u, v,
 at the three probes and the 19 points of the section A-A, at every step (2178 values).  Why three:
 mu = K T^A epsbar^(n-1) / 3, so one near-isothermal experiment sees only K T0^A (the
-Fisher matrix of the first experiment alone has condition number ~1e6); a second T0 separates
+Fisher matrix of the first experiment alone has condition number ~5e8 in relative units, ~2e6
+for the three; docs/notes/gradients.md); a second T0 separates
 K from A, a second omega widens the strain rates that fix n.  The fit starts about 20 % away
 (K x 0.8, A x 1.2, n x 1.2) and takes damped Gauss-Newton steps (an optax transformation,
 ``jaxanm.fsw.calibration.gauss_newton``) with gradients and Jacobians from forward

@@ -8,6 +8,8 @@ Every public function runs in float64 (inside ``jax.enable_x64``) without changi
 global configuration; wrap your own jnp code in ``with jaxanm.float64():`` to match.
 """
 
+from typing import TYPE_CHECKING
+
 from ._acceptance import evaluate_series, validity_range
 from ._constant_step import ConstantStepSize
 from ._factorization import Factorization, factorize
@@ -67,6 +69,26 @@ __all__ = [
     "validity_range",
     "value_and_grad",
 ]
+
+SUBMODULES = ("checkpoint", "compile_cache", "fsw", "ida", "mls", "sweep")
+"""Documented submodules that ``import jaxanm`` does not load: each is imported on its first use
+as an attribute (``jaxanm.fsw.run``, ``jaxanm.compile_cache.enable()``), so that importing the
+solver stays as fast as it was and the FSW model, Dask or SUNDIALS load only when asked for."""
+
+if TYPE_CHECKING:  # the type checker sees them as plain imports
+    from . import checkpoint, compile_cache, fsw, ida, mls, sweep  # noqa: F401
+else:
+    def __getattr__(name: str):
+        """Import a documented submodule on first access (PEP 562)."""
+        if name in SUBMODULES:
+            import importlib
+
+            return importlib.import_module(f"{__name__}.{name}")
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+    def __dir__():
+        """The package's names, the lazily imported submodules included."""
+        return sorted({*globals(), *SUBMODULES})
 
 __version__ = "0.2.0"
 """The package version (the one source: pyproject.toml reads it, see CHANGELOG.md)."""

@@ -71,9 +71,10 @@ def _affine(eqn, dep: list, aff: list) -> bool:
     return False
 
 
-def _trace(fun: Callable, x, args):
-    """The closed jaxpr of ``fun(x, *args)`` over flat arguments, with nested ``jit`` calls
-    inlined so that their insides are classified; f must have one array output."""
+def flat_jaxpr(fun: Callable, x, args):
+    """The closed jaxpr of ``fun(x, *args)`` over flat arguments (``x``, then the leaves of
+    ``args``), with nested ``jit`` calls inlined so that their insides are seen; ``fun`` must
+    have one array output."""
     flat_args, tree = jax.tree_util.tree_flatten(args)
 
     def flat_fun(x, *flat):
@@ -82,7 +83,7 @@ def _trace(fun: Callable, x, args):
     with jax.disable_jit():  # inline jnp's internal jit calls, so that their insides are classified
         closed = jax.make_jaxpr(flat_fun)(x, *flat_args)
     if len(closed.jaxpr.outvars) != 1:
-        raise ValueError(f"split_affine needs a function with one array output, got {len(closed.jaxpr.outvars)}")
+        raise ValueError(f"need a function with one array output, got {len(closed.jaxpr.outvars)}")
     return closed
 
 
@@ -178,7 +179,7 @@ def split_affine(fun: Callable, x, *args, scalar_factors_affine: bool = True) ->
 
 def _split(fun: Callable, x, args: tuple, scalar_factors_affine: bool) -> AffineSplit:
     """:func:`split_affine`, made."""
-    closed = _trace(fun, x, args)
+    closed = flat_jaxpr(fun, x, args)
     jaxpr, consts = closed.jaxpr, closed.consts
     kinds, affine = _classify(jaxpr, scalar_factors_affine)
     frontier = _frontier(jaxpr, kinds, affine)

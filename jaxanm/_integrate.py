@@ -84,7 +84,7 @@ def integrate(residual: Callable, x0, params=None, *, t0: float, t1: float, dt: 
     jacobian, sparsity :
         Tangent by dense or coloured compressed ``jacfwd`` (``"dense"``, ``"sparse"``, or ``"auto"``:
         sparse when ``sparsity`` is given or n > 400); ``sparsity``: a scipy sparse pattern, a
-        callable ``params -> pattern``, or None (detected from dense probes, small problems).
+        callable ``params -> pattern``, or None (found from the residual's jaxpr).
     saveat : SaveAt, optional
         What is kept (:class:`~jaxanm.SaveAt`): the state at given times (``ts``; the steps nearest
         to them, or with a ``StepController`` steps ending exactly on them) or every k-th step

@@ -18,7 +18,7 @@ from ._sensitivity_method import SensitivityMethod
 from ._solver import StepSolver
 from ._step_size import StepSizeController
 from .errors import InputError
-from .jacobian import detect_sparsity
+from .jacobian import dense_jacobian_fits, detect_sparsity
 
 AUTO_SPARSE_SIZE = 400
 """Above this many unknowns ``jacobian="auto"`` picks the sparse Jacobian."""
@@ -81,15 +81,20 @@ def _fixed(controller) -> bool:
 
 def jacobian_kind(jacobian: str, sparsity, n: int) -> str:
     """``"dense"`` or ``"sparse"``: ``jacobian`` itself, or for ``"auto"`` sparse when a pattern
-    is given or there are more than :data:`AUTO_SPARSE_SIZE` unknowns."""
-    if jacobian != "auto":
-        return jacobian
-    return "sparse" if (sparsity is not None or n > AUTO_SPARSE_SIZE) else "dense"
+    is given or there are more than :data:`AUTO_SPARSE_SIZE` unknowns.  A dense Jacobian that
+    would not fit in memory is refused (:class:`InputError`) before anything is computed."""
+    if jacobian == "auto":
+        jacobian = "sparse" if (sparsity is not None or n > AUTO_SPARSE_SIZE) else "dense"
+    if jacobian == "dense":
+        dense_jacobian_fits(n, "jacobian='dense'", "use jacobian='sparse' (its pattern is found from the residual "
+                            "when no sparsity= is given) or 'auto'")
+    return jacobian
 
 
 def tangent_pattern(residual, x0, t0, dt, params, jacobian: str, sparsity):
     """The tangent's kind (``"dense"`` or ``"sparse"``) and its sparsity pattern: the one given,
-    or for a sparse tangent without one, detected from dense probes at the first step."""
+    or for a sparse tangent without one, found from the residual's jaxpr
+    (:func:`~jaxanm.detect_sparsity`: it holds for every state, old state, time and step)."""
     jacobian = jacobian_kind(jacobian, sparsity, x0.size)
     if jacobian == "sparse" and sparsity is None:
         sparsity = detect_sparsity(residual, x0, x0, t0 + dt, dt, params)

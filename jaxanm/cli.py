@@ -48,14 +48,13 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import re
 import sys
 import time
 from pathlib import Path
 
 from jaxanm import compile_cache
-from jaxanm.errors import InputError, SingularMatrixError, StepFailure
-from jaxanm.fsw.scene import SOLVER_NAMES
+from jaxanm.errors import InputError, SingularMatrixError, StepFailure, did_you_mean
+from jaxanm.fsw.scene import SOLVER_NAMES, SOLVER_OPTIONS, override_keys
 
 PROG = "jaxanm"
 DEFAULT_SCENE = "fsw"
@@ -108,7 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--no-compile-cache", action="store_true",
                      help="do not keep compiled XLA code on disk for later runs (default: kept in "
-                     "$JAXANM_COMPILE_CACHE_DIR or ~/.cache/jaxanm; JAXANM_COMPILE_CACHE=0 also turns it off)")
+                     "$JAXANM_COMPILE_CACHE_DIR or ~/.cache/jaxanm/jax-<jax version>; JAXANM_COMPILE_CACHE=0 "
+                     "also turns it off)")
     run.set_defaults(func=_cmd_run)
 
     sweep = sub.add_parser("sweep", help="run a grid of scene overrides x solver settings on Dask",
@@ -131,9 +131,13 @@ def build_parser() -> argparse.ArgumentParser:
                        help="the workers do not keep compiled XLA code on disk (as jaxanm run --no-compile-cache)")
     sweep.set_defaults(func=_cmd_sweep)
 
-    scenes = sub.add_parser("scenes", help="list the shipped scenes",
-                            description="List the shipped scenes: name, end time and what each is for "
-                            "(the first sentence of its TOML file's opening comment), then its effects.")
+    scenes = sub.add_parser("scenes", help="list the shipped scenes, or print one with every key",
+                            description="Without SCENE: list the shipped scenes, name, end time and what each "
+                            "is for (the first sentence of its TOML file's opening comment), then its effects. "
+                            "With SCENE (a shipped name or a TOML path): print that scene as a TOML file with every "
+                            "key resolved, each marked with its default; a start for a scene of your own "
+                            "(jaxanm scenes fsw_small > mine.toml).")
+    scenes.add_argument("scene", nargs="?", metavar="SCENE", help="scene to print with every key")
     scenes.set_defaults(func=_cmd_scenes)
     return parser
 
@@ -171,6 +175,16 @@ def load_run_scene(args: argparse.Namespace, base=None):
     """Load ``args.scene`` (else ``base``, else the default scene) and apply ``--set``
     overrides, then the shorthand options."""
     overrides = parse_overrides(args.overrides)
+    known = override_keys()
+    for key in overrides:
+        if key not in known:
+            section, _, field = key.rpartition(".")  # a known section: the closest of its own keys
+            fields = [k.split(".", 1)[1] for k in known if section and k.startswith(section + ".")]
+            hint = did_you_mean(field, fields, prefix=section + ".") if fields else did_you_mean(key, known)
+            if fields and not hint:
+                hint = f"[{section}] has {', '.join(fields)}"
+            raise UsageError(f"--set {key}: no such scene key{f' ({hint})' if hint else ''}; every key with its "
+                             "default: jaxanm scenes SCENE, or docs/guide/scene-keys.md")
     shorthands = {"time.t_end": args.t_end, "solver.order": args.order, "solver.tol": args.tol,
                   "solver.kind": SOLVER_NAMES.get(args.solver)}
     if args.scene is not None or base is None:
@@ -182,7 +196,24 @@ def load_run_scene(args: argparse.Namespace, base=None):
     shorthands = {k: v for k, v in shorthands.items() if v is not None}
     if shorthands:
         scene = scene.with_overrides(shorthands)
+    _check_solver_options(scene, overrides, order_given=args.order is not None)
     return scene
+
+
+def _check_solver_options(scene, overrides: dict, order_given: bool) -> None:
+    """Refuse ``--order`` for a solver without a series order; warn of ``--set solver.X`` that the
+    scene's solver does not take (a scene file keeps every solver's fields, a command line names
+    what it means to change)."""
+    kind = scene.solver.kind
+    takes = SOLVER_OPTIONS[next(k for k, v in SOLVER_NAMES.items() if v == kind)]
+    if order_given and "order" not in takes:
+        raise UsageError(f"--order sets the ANM's series order (solver.order); the {kind} solver has none "
+                         f"(it takes {', '.join(takes)}): drop --order, or add --solver anm")
+    unused = sorted(key for key in overrides if key.startswith("solver.") and key != "solver.kind"
+                    and key.split(".", 1)[1] not in takes)
+    if unused:
+        logging.getLogger("jaxanm").warning("--set %s: not used by the %s solver (it takes %s)",
+                                            ", ".join(unused), kind, ", ".join(takes))
 
 
 class ProgressBar:
@@ -310,7 +341,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close()
             bar = None
-        return _error(_stopped(f"solver failed: {exc}", exc, out_dir, scene, checkpointing), 1)
+        return _error(_stopped(f"solver failed: {exc}", exc, out_dir, scene, checkpointing)
+                      + what_to_try(scene, exc), 1)
     finally:
         if bar is not None:
             bar.close()
@@ -330,6 +362,28 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+TROUBLESHOOTING = "docs/guide/troubleshooting.md"
+"""The page on failed and inaccurate runs (in the repository, and on the documentation site)."""
+
+
+def what_to_try(scene, exc: StepFailure | SingularMatrixError) -> str:
+    """What to change when ``scene``'s run failed with ``exc``, as the end of the error line:
+    the options that apply to its solver, effects and start, the cheapest first."""
+    kind, tries = scene.solver.kind, []
+    if kind == "anm":
+        more = max(200, 4 * scene.solver.max_substeps)
+        tries.append(f"more continuation sub-steps (--set solver.max_substeps={more})")
+    else:
+        tries.append(f"more iterations (--set solver.max_iter={2 * scene.solver.make().max_iter})")
+    if {"inertia", "conduction", "lagrangian", "tracers"} & set(scene.effects):  # else dt changes no step
+        tries.append(f"a smaller time step than the run's own halvings reached (--set time.dt={scene.time.dt / 100:g})")
+    tries.append("another solver (" + ", ".join(f"--solver {name}" for name, k in SOLVER_NAMES.items()
+                                                if k != kind) + ")")
+    if "viscous" in scene.effects and scene.mechanics.start == "rest" and getattr(exc, "step", 1) <= 1:
+        tries.append("starting from the quasi-static flow instead of rest (--set mechanics.start=quasi_static)")
+    return f"; to get past it try {'; '.join(tries)}; more in {TROUBLESHOOTING}"
+
+
 def _accuracy_lines(paths) -> list[str]:
     """The accuracy lines of the run's ``summary.json`` (none if it was not written): the
     spatial accuracy, the time error estimate and the registration points' oscillation."""
@@ -341,7 +395,17 @@ def _accuracy_lines(paths) -> list[str]:
     block = json.loads(Path(summary).read_text(encoding="utf-8"))
     spatial = block.get("spatial_accuracy")
     return (spatial_accuracy_lines(spatial) + time_error_lines(block.get("time_error"), spatial)
-            + probe_oscillation_lines(block.get("probe_oscillation")))
+            + probe_oscillation_lines(block.get("probe_oscillation")) + coarse_cloud_lines(spatial))
+
+
+def coarse_cloud_lines(spatial: dict | None) -> list[str]:
+    """Why a run's temperature error is large, when its cloud puts under one point across the
+    tool-edge shear band (``summary.json``'s ``spatial_accuracy``); none otherwise."""
+    if (spatial or {}).get("shear_band_points", 1.0) >= 1.0:
+        return []
+    return ["why so large: this cloud puts under one point across the tool-edge shear band, where the heat "
+            "is made, so its temperatures are those of a coarse demonstration scene; the main job "
+            "(jaxanm run fsw) resolves the band: docs/physics/accuracy.md"]
 
 
 def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> str:
@@ -399,8 +463,24 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_scenes(args: argparse.Namespace) -> int:
-    """``jaxanm scenes``: per shipped scene, its name, end time and description, then its effects."""
+    """``jaxanm scenes``: per shipped scene, its name, end time and description, then its effects;
+    ``jaxanm scenes SCENE``: that scene as TOML, every key resolved (:func:`scene_toml`)."""
     from jaxanm.fsw.scene import SCENES_DIR, shipped_scenes
+    from jaxanm.fsw.scene_text import scene_description, scene_toml
+
+    if args.scene is not None:
+        try:
+            scene = _load_scene(args.scene)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from exc
+        shipped = args.scene in shipped_scenes()
+        source = SCENES_DIR / f"{args.scene}.toml" if shipped else Path(args.scene)
+        shown = source.relative_to(SCENES_DIR.parents[2]) if shipped else source
+        print(f"# {scene.name}: {scene_description(source) or 'a scene'}\n"
+              f"# Every key of {shown} resolved (its base scenes, then the defaults); that file's\n"
+              f"# comments say why each value.  A start of your own: jaxanm scenes {args.scene} > mine.toml\n")
+        print(scene_toml(scene))
+        return 0
 
     for name in shipped_scenes():
         try:
@@ -411,23 +491,6 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
         print(f"{name:<20} {f'{scene.time.t_end:g} s':<8} {description}")
         print(f"{'':<20} effects: {', '.join(scene.effects)}")
     return 0
-
-
-def scene_description(path, width: int = 130) -> str:
-    """The first sentence of the comment block that opens the scene TOML at ``path``, on one
-    line of at most ``width`` characters (cut at a word, with "..."); ``""`` without one.
-    """
-    lines = []
-    for line in Path(path).read_text(encoding="utf-8").splitlines():
-        if not line.startswith("#"):
-            break
-        lines.append(line.lstrip("#").strip())
-    text = " ".join(lines).strip()
-    match = re.match(r"(.+?[.!?])(?=\s+[A-Z(`]|\s*$)", text)  # "V . grad T" is no sentence end
-    sentence = match.group(1) if match else text
-    if len(sentence) > width:
-        sentence = sentence[:width - 3].rsplit(" ", 1)[0].rstrip(",;:") + "..."
-    return sentence
 
 
 def _error(message, status: int) -> int:

@@ -459,8 +459,10 @@ def _correction(system, lin, U_1, r_end, U_end, end) -> np.ndarray:
 
 def _check_newton(ds, ds_max, ds_min, max_iter, target_iter):
     for name, value in (("ds", ds), ("ds_max", ds_max), ("ds_min", ds_min)):
-        if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < np.inf):
-            raise InputError(f"{name} must be a positive finite number (scaled arclength), got {value!r}")
+        if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value
+                and (value < np.inf or name == "ds_max")):
+            raise InputError(f"{name} must be a positive finite number (scaled arclength; ds_max may be np.inf), "
+                             f"got {value!r}")
     if not ds_min <= ds <= ds_max:
         raise InputError(f"need ds_min <= ds <= ds_max, got ds_min={ds_min!r}, ds={ds!r}, ds_max={ds_max!r}")
     for name, value in (("max_iter", max_iter), ("target_iter", target_iter)):
@@ -471,7 +473,7 @@ def _check_newton(ds, ds_max, ds_min, max_iter, target_iter):
 @entry_point
 def newton_continuation(residual: Callable, u0, lam0, params=None, *, lam_end=None, stop_at=None,
                         max_steps: int = 200, tol: float = 1e-8, scale=None, jacobian: str = "auto", sparsity=None,
-                        direction: int = 1, ds: float = 0.1, ds_max: float = 1.0, ds_min: float = 1e-8,
+                        direction: int = 1, ds: float = 0.1, ds_max: float = np.inf, ds_min: float = 1e-8,
                         max_iter: int = 8, target_iter: int = 4, factorize: Callable | None = None) -> Branch:
     """Follow the same branch as :func:`continuation` by Keller's pseudo-arclength continuation.
 
@@ -489,7 +491,10 @@ def newton_continuation(residual: Callable, u0, lam0, params=None, *, lam_end=No
     Parameters
     ----------
     ds, ds_max, ds_min : float
-        First, largest and smallest step length (scaled pseudo-arclength).
+        First, largest and smallest step length (scaled pseudo-arclength).  ``ds_max`` is no
+        fixed bound by default (np.inf): the steps grow with the Newton iteration count's
+        control as far as the branch lets them, so they scale with the branch (a long branch,
+        e.g. a fine grid's with unscaled unknowns, is not crawled at a fixed length).
     max_iter, target_iter : int
         Newton iterations allowed per step, and the number the step-length control aims at.
     residual, u0, lam0, params, lam_end, stop_at, max_steps, tol, scale, jacobian, sparsity, direction, factorize :

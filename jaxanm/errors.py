@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import difflib
 import math
+from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -11,6 +13,22 @@ if TYPE_CHECKING:
 
 class InputError(ValueError):
     """Invalid input detected before any computation; the message names the field and the fix."""
+
+
+def did_you_mean(word: str, choices: Iterable[str], cutoff: float = 0.6, prefix: str = "") -> str:
+    """The closest of ``choices`` to a misspelt ``word``, for an error message.
+
+    Returns ``"did you mean 'material.n'?"`` (the choices equally close to ``word``, by
+    :class:`difflib.SequenceMatcher`'s similarity ratio, each after ``prefix``), or ``""`` when
+    none reaches ``cutoff``.  One suggestion instead of the list of every choice: the message
+    stays one line.
+    """
+    scored = [(difflib.SequenceMatcher(None, word, c).ratio(), c) for c in choices]
+    best = max((ratio for ratio, _ in scored), default=0.0)
+    if best < cutoff:
+        return ""
+    closest = [prefix + c for ratio, c in scored if ratio == best]
+    return f"did you mean {' or '.join(repr(c) for c in closest)}?"
 
 
 def _number(value) -> str:
@@ -31,7 +49,9 @@ class StepFailure(RuntimeError):
 
     ``amax`` is ``None`` (printed ``n/a``) for Newton solvers, and ``residual_norm`` is ``None``
     when no residual was evaluated at the failing state; a non-finite norm is printed as
-    ``nan`` or ``inf``.
+    ``nan`` or ``inf``.  What to change when a step fails (more ANM sub-steps, a smaller step,
+    another solver, a better start): docs/guide/troubleshooting.md; the ``jaxanm`` command ends
+    its error line with the options that apply to the failed scene.
     """
 
     # set by a step solver on a failure inside its step: the state to retry from (absent

@@ -254,5 +254,6 @@ def test_summary_reports_band_resolution_and_rise_error(tmp_path):
 
     assert cli._accuracy_lines([tmp_path / "fields.npz", tmp_path / "summary.json"]) == \
         output.spatial_accuracy_lines(summary["spatial_accuracy"]) + output.time_error_lines(
-            summary["time_error"]) + output.probe_oscillation_lines(summary["probe_oscillation"])
+            summary["time_error"]) + output.probe_oscillation_lines(summary["probe_oscillation"]) + \
+        cli.coarse_cloud_lines(summary["spatial_accuracy"])
     assert cli._accuracy_lines([]) == []

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -22,6 +23,7 @@ from test_output import fake_result
 from jaxanm import cli
 from jaxanm.errors import StepFailure
 from jaxanm.fsw.scene import Scene, shipped_scenes
+from jaxanm.fsw.scene_text import scene_description
 from jaxanm.stats import Stats
 
 TINY_TOML = """
@@ -94,6 +96,11 @@ def test_run_writes_outputs_and_prints_summary(tiny, tmp_path, fake_run, capsys)
     assert Scene.from_dict(summary["scene"]) == fake_run["scene"]  # the scene round-trips
     assert (out / "fields.npz").exists() and (out / "fields.pvd").exists()
     assert fake_run["callback"] is None
+    # the CLI guide's table of output files names every file and folder a run writes
+    guide = (Path(cli.__file__).resolve().parents[1] / "docs" / "guide" / "cli.md").read_text(encoding="utf-8")
+    table = guide[guide.index("### Output files"):guide.index("### Exit status")]
+    written = {re.sub(r"^fig\d\d_.*", "fig", p.name) for p in out.iterdir() if not p.name.startswith(".")}
+    assert written and not [name for name in written if f"`{name}" not in table and f"`{name}/" not in table]
 
 
 def test_shorthands_and_set_overrides_reach_the_scene(tiny, tmp_path, fake_run, no_files):
@@ -148,11 +155,16 @@ def test_progress_bar_tracks_simulated_time():
 
 @pytest.mark.parametrize("argv, expected", [
     (["run", "no_such_scene"], "unknown scene 'no_such_scene'"),
+    (["run", "fsw_smal"], "unknown scene 'fsw_smal' (did you mean 'fsw_small'?)"),
+    (["run", "fsw.toml"], "scene file 'fsw.toml' does not exist; the shipped scene is 'fsw'"),
+    (["run", "{tiny}", "--set", "material.nn=0.3"], "material.nn: no such scene key (did you mean 'material.n'?)"),
+    (["run", "{tiny}", "--solver", "mnewton", "--order", "5"], "--order sets the ANM's series order"),
+    (["run", "{tiny}", "--solver", "newton", "--order", "5"], "the newton solver has none"),
     (["run", "missing.toml"], "does not exist"),
     (["run", "{tiny}", "--set", "material.K"], "--set expects KEY=VALUE"),
     (["run", "{tiny}", "--set", "=3"], "--set expects KEY=VALUE"),
     (["run", "{tiny}", "--set", "time.dt=1e-4", "--set", "time.dt=2e-4"], "given twice"),
-    (["run", "{tiny}", "--set", "material.nope=1"], "override key"),
+    (["run", "{tiny}", "--set", "material.nope=1"], "material.nope: no such scene key ([material] has K, A, n,"),
     (["run", "{tiny}", "--set", "material.K=abc"], "material.K"),
     (["run", "{tiny}", "--tol", "2"], "solver.tol"),
     (["run", "{tiny}", "--set", "solver.pade=maybe"], "solver.pade"),
@@ -171,6 +183,57 @@ def test_bad_input_exits_2_with_one_line(argv, expected, tiny, fake_run, capsys)
     assert captured.out == "" and "scene" not in fake_run
 
 
+def test_a_misspelt_key_is_answered_with_the_closest_key_not_all_of_them(tiny, fake_run, capsys):
+    assert cli.main(["run", str(tiny), "--set", "materal.K=2e16"]) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert "did you mean 'material.K'?" in line and "material.rho" not in line
+
+
+def test_a_time_dependent_scene_s_failure_suggests_a_step_below_the_halvings_reached(tiny):
+    """Four halvings reach dt / 16: the suggestion is a hundredth of the scene's dt."""
+    scene = cli._load_scene(str(tiny)).with_overrides({"effects": "viscous,inertia"})
+    advice = cli.what_to_try(scene, StepFailure("x", step=3, t=3e-4))
+    assert "--set time.dt=1e-06" in advice and "quasi_static" not in advice
+
+
+def test_set_solver_option_the_solver_does_not_take_is_named(tiny, tmp_path, fake_run, no_files, capsys):
+    argv = ["run", str(tiny), "--solver", "mnewton", "--set", "solver.pade=true", "--out", str(tmp_path),
+            "--no-progress"]
+    assert cli.main(argv) == 0
+    assert "--set solver.pade: not used by the modified_newton solver (it takes tol, max_iter, max_rate)" \
+        in capsys.readouterr().err
+    assert fake_run["scene"].solver.kind == "modified_newton"
+
+
+def test_a_folder_named_like_a_shipped_scene_does_not_hide_it(tmp_path, monkeypatch, fake_run, no_files, capsys):
+    """``jaxanm run fsw`` after ``jaxanm run --out fsw`` in the same folder runs the shipped scene."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "fsw").mkdir()
+    assert cli.main(["run", "fsw", "--out", "out", "--no-progress"]) == 0
+    assert fake_run["scene"].name == "fsw"
+    assert "note:" not in capsys.readouterr().err  # a folder is never a scene file: nothing to warn of
+
+
+@pytest.mark.parametrize("file_name", ["couette_small", "couette_small.toml"])
+def test_a_file_named_like_a_shipped_scene_is_named_in_a_warning(file_name, tmp_path, monkeypatch, fake_run,
+                                                                  no_files, capsys):
+    """The shipped scene is taken, the warning says how to run the file, and that way runs it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / file_name).write_text(TINY_TOML)
+    assert cli.main(["run", "couette_small", "--out", "out", "--no-progress"]) == 0
+    assert fake_run["scene"].name == "couette_small"
+    err = capsys.readouterr().err
+    explicit = os.path.join(".", file_name)
+    assert f"running the shipped scene; to run the file, give its path, e.g. {explicit}" in err
+    assert cli.main(["run", explicit, "--out", "out", "--no-progress"]) == 0
+    assert fake_run["scene"].name == "tiny"
+
+
+def test_a_folder_is_not_a_scene_file(tmp_path, fake_run, capsys):
+    assert cli.main(["run", str(tmp_path)]) == 2
+    assert "is a folder, not a scene file" in one_error_line(capsys.readouterr().err)
+
+
 def test_bad_toml_exits_2(tmp_path, capsys):
     path = tmp_path / "broken.toml"
     path.write_text("name = [unclosed\n")
@@ -185,8 +248,30 @@ def test_solver_failure_exits_1_with_its_message(tiny, tmp_path, monkeypatch, ca
     monkeypatch.setattr(cli, "_simulate", failing)
     assert cli.main(["run", str(tiny), "--out", str(tmp_path / "o"), "--no-progress"]) == 1
     line = one_error_line(capsys.readouterr().err)
-    assert line == "jaxanm: error: solver failed: step 3 (t = 0.0003): series diverged; a_max = 0.001, |R|_inf = n/a"
+    assert line.startswith("jaxanm: error: solver failed: step 3 (t = 0.0003): series diverged; a_max = 0.001, "
+                           "|R|_inf = n/a; to get past it try ")
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("solver, step, expected, absent", [
+    # the ANM: more sub-steps (4 x the scene's 50), the other solvers; on the first step from
+    # rest the quasi-static start; the tiny scene (viscous only) solves the same flow whatever dt
+    ("anm", 1, ["--set solver.max_substeps=200", "--solver newton", "--solver mnewton",
+                "--set mechanics.start=quasi_static", cli.TROUBLESHOOTING], ["--solver anm", "max_iter", "time.dt"]),
+    # Newton: twice its default 30 iterations; past the first step the start is not the cause
+    ("newton", 5, ["--set solver.max_iter=60", "--solver anm"], ["max_substeps", "quasi_static", "--solver newton"]),
+])
+def test_a_failed_run_says_what_to_try(solver, step, expected, absent, tiny, tmp_path, monkeypatch, capsys):
+    def failing(scene, callback, **checkpointing):
+        raise StepFailure("series from a fresh K* cannot reach a = 1", step=step, t=step * 1e-4, amax=2e-4,
+                          residual_norm=0.2)
+
+    monkeypatch.setattr(cli, "_simulate", failing)
+    argv = ["run", str(tiny), "--solver", solver, "--out", str(tmp_path / "o"), "--no-progress"]
+    assert cli.main(argv) == 1
+    line = one_error_line(capsys.readouterr().err)
+    assert all(hint in line for hint in expected), line
+    assert not any(hint in line for hint in absent), line
 
 
 def test_unwritable_output_exits_1(tiny, tmp_path, fake_run, capsys):
@@ -194,6 +279,22 @@ def test_unwritable_output_exits_1(tiny, tmp_path, fake_run, capsys):
     blocker.write_text("not a directory")
     assert cli.main(["run", str(tiny), "--out", str(blocker / "sub"), "--no-progress"]) == 1
     assert "cannot write results to" in one_error_line(capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("points, explained", [(0.14, True), (1.2, False)])
+def test_a_coarse_cloud_s_large_error_is_explained(points, explained, tmp_path):
+    """Under one point across the tool-edge shear band the summary says why the rise error is
+    large and where the accuracy of each scene is; a resolved band gets no such line."""
+    summary = tmp_path / "summary.json"
+    summary.write_text(json.dumps({"spatial_accuracy": {
+        "shear_band_width_m": 1.04e-4, "shear_band_points": points, "edge_spacing_m": 1.04e-4 / points,
+        "rise_error": {"t": 0.01, "rel_l2": 0.29, "mean_ratio": 0.936, "max_abs_K": 3.88}}}))
+    lines = cli._accuracy_lines([summary])
+    assert f"{points:.2f} points across" in lines[0] and "29 % rel. L2 error" in lines[1]
+    why = [line for line in lines if line.startswith("why so large")]
+    assert bool(why) is explained
+    if explained:
+        assert "docs/physics/accuracy.md" in why[0]  # that it exists: tests/test_docs_claims.py
 
 
 def test_help_and_version_exit_0(capsys):
@@ -230,16 +331,33 @@ def test_scenes_lists_shipped(capsys):
     assert "The friction-stir-welding example of the paper" in "\n".join(names)
 
 
+@pytest.mark.parametrize("name", ["fsw_small", "fsw_weld_slip"])
+def test_scenes_name_prints_a_scene_file_that_loads_back_to_the_scene(name, tmp_path, capsys):
+    """``jaxanm scenes NAME`` writes every key (a scene built on others resolved), each section key
+    marked with its default; the output is a scene file of the same scene."""
+    from jaxanm.fsw.scene import load_scene
+
+    assert cli.main(["scenes", name]) == 0
+    out = capsys.readouterr().out
+    path = tmp_path / "copy.toml"
+    path.write_text(out)
+    assert load_scene(path) == load_scene(name)
+    lines = out.splitlines()
+    assert "dr = 0.00075  # default 0.000375" in lines or name != "fsw_small"  # changed: the default shown
+    assert "R1 = 0.0015  # default" in lines  # kept: marked as the default
+    assert len([line for line in lines if line.startswith("[") and not line.startswith("[[")]) == 7
+
+
 def test_scene_description_is_the_first_sentence_of_the_opening_comment(tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text("# A scene for tests: V . grad T kept.  Second sentence.\n"
                      "# More.\nname = 's'\n# not the opening block\n", encoding="utf-8")
-    assert cli.scene_description(scene) == "A scene for tests: V . grad T kept."
+    assert scene_description(scene) == "A scene for tests: V . grad T kept."
     scene.write_text("# " + "word " * 60 + "\nname = 's'\n", encoding="utf-8")
-    short = cli.scene_description(scene, width=40)
+    short = scene_description(scene, width=40)
     assert len(short) <= 40 and short.endswith("word...")
     scene.write_text("name = 's'\n", encoding="utf-8")
-    assert cli.scene_description(scene) == ""
+    assert scene_description(scene) == ""
 
 
 def test_logging_handler_removed_after_main(tiny, tmp_path, fake_run, no_files):

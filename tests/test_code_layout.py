@@ -29,6 +29,7 @@ FSW_IMPORTS = {
     # the data flow: scene -> geometry -> physics -> discretisation -> (start) -> record -> lagrangian -> simulate
     "scene_sections": set(),
     "scene": {"scene_sections"},
+    "scene_text": set(),
     "geometry": {"scene"},
     "physics": {"scene", "geometry"},
     "discretisation": {"scene", "geometry", "physics"},

@@ -4,21 +4,19 @@
   pages as they are, their .png figures, .json/.csv data), and an index of them;
 - ``notebooks/``: each ``notebooks/*.ipynb`` as a page (markdown cells as written, code cells as
   code blocks; the notebooks are committed without outputs and are not executed here);
-- ``changelog.md``: ``CHANGELOG.md``;
-- ``guide/cli-help.md``: the ``--help`` text of every ``jaxanm`` command;
-- ``guide/scene-keys.md``: every scene key with its default, from :mod:`jaxanm.fsw.scene`.
+- ``changelog.md``: ``CHANGELOG.md``.
 
-Nothing is copied into ``docs/`` on disk: the pages exist only in the build.  Links between
-the repository's files are rewritten to these pages by ``hooks.py``.
+Nothing is copied into ``docs/`` on disk: the pages exist only in the build, and the
+repository's files they come from are what ``docs/`` links to (``hooks.py`` rewrites those
+links to these pages).  The reference pages generated from the code (scene keys, command
+reference) are committed instead, so that they read in the repository too:
+``reference_pages.py``.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import io
 import json
 import re
-from contextlib import redirect_stdout
 from pathlib import Path
 
 import mkdocs_gen_files
@@ -141,53 +139,6 @@ def changelog_page() -> None:
         out.write((ROOT / "CHANGELOG.md").read_text(encoding="utf-8"))
 
 
-def cli_help_page() -> None:
-    from jaxanm import cli
-
-    parser = cli.build_parser()
-    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
-    lines = ["# Command-line reference", "",
-             "The `--help` text of each command, as `jaxanm` prints it (generated from "
-             "`jaxanm/cli.py` at build time). How to use them: [the CLI guide](cli.md).", "",
-             "## jaxanm", "", "```text", parser.format_help().rstrip(), "```", ""]
-    for name, command in sub.choices.items():
-        lines += [f"## jaxanm {name}", "", "```text", command.format_help().rstrip(), "```", ""]
-    with mkdocs_gen_files.open("guide/cli-help.md", "w") as out:
-        out.write("\n".join(lines))
-
-
-def scene_keys_page() -> None:
-    from jaxanm.fsw import scene as sc
-
-    lines = ["# Scene keys", "",
-             "Every key a scene TOML table (or `--set KEY=VALUE`) may set, with its default "
-             "(generated from `jaxanm/fsw/scene.py` at build time). The default is that of a "
-             "`Scene()` built in Python; the shipped scenes set most keys themselves "
-             "(see [Scenes](scenes.md)), and each section's meaning is in its class: "
-             "[API: FSW model](../api/fsw.md).", "",
-             "Top level: `name` (a string), `effects` (a list of the names below), "
-             "`[[probes]]` (registration points: `name`, `x`, `y`) and `[[sections]]` "
-             "(registration lines: `name`, `start`, `end`, `samples`).", "",
-             "## Effects", "", "| effect | needs |", "| --- | --- |"]
-    lines += [f"| `{e}` | {', '.join(f'`{r}`' for r in sc.EFFECT_REQUIRES.get(e, ())) or '—'} |"
-              for e in sc.EFFECTS]
-    lines += ["", "What each effect adds to the model: [Equations](../physics/index.md).", ""]
-    for section, cls in sc._SECTIONS.items():
-        lines += [f"## [{section}]", "", f"Class `jaxanm.fsw.scene.{cls.__name__}`.", "",
-                  "| key | default |", "| --- | --- |"]
-        for field in dataclasses.fields(cls):
-            if field.name.startswith("_"):
-                continue
-            default = field.default if field.default is not dataclasses.MISSING else (
-                field.default_factory() if field.default_factory is not dataclasses.MISSING else "")
-            lines.append(f"| `{section}.{field.name}` | `{default!r}` |")
-        lines.append("")
-    with mkdocs_gen_files.open("guide/scene-keys.md", "w") as out:
-        out.write("\n".join(lines))
-
-
 results_pages()
 notebook_pages()
 changelog_page()
-cli_help_page()
-scene_keys_page()

@@ -35,6 +35,8 @@ def _site_path(repo_target: str) -> str | None:
     """The docs-relative site path of a repository file, or None when the site does not hold it."""
     if repo_target.startswith("docs/"):
         return repo_target[len("docs/"):]
+    if repo_target == "benchmarks/results":  # the folder (a listing in the repository): the results index
+        return "results/index.md"
     if repo_target.startswith("benchmarks/results/"):
         return "results/" + repo_target[len("benchmarks/results/"):]
     if repo_target.startswith("notebooks/"):

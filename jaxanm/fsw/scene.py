@@ -23,10 +23,13 @@ Shipped scenes live in ``jaxanm/fsw/scenes/*.toml``; :func:`load_scene` takes th
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
+import os
 import tomllib
 from pathlib import Path
 
+from ..errors import did_you_mean
 from .scene_sections import (  # noqa: F401 - re-exported: the sections are part of this module's API
     _NAME_CHARS,
     EDGE_ROWS,
@@ -78,6 +81,8 @@ __all__ = [
     "override_keys",
     "shipped_scenes",
 ]
+
+log = logging.getLogger(__name__)
 
 SCENES_DIR = Path(__file__).with_name("scenes")
 """Directory of the shipped scene files."""
@@ -343,18 +348,43 @@ def load_scene(name_or_path) -> Scene:
 
 
 def _scene_path(name_or_path, relative_to: Path | None = None) -> Path:
-    """The TOML file of a shipped scene's name or of a path (relative to ``relative_to``'s folder)."""
+    """The TOML file of a shipped scene's name or of a path (relative to ``relative_to``'s folder).
+
+    A shipped scene's name (``"fsw"``) is that scene, whatever the current folder holds: a folder
+    of that name (e.g. the results of ``jaxanm run --out fsw``) is never a scene file, and a *file*
+    of that name, or of that name plus ``.toml``, only gets a warning naming the way to run it
+    (``./fsw``).  Anything else is a path.
+    """
+    text = str(name_or_path)
     path = Path(name_or_path)
-    if path.suffix != ".toml" and not path.exists():
-        if str(name_or_path) not in shipped_scenes():
-            raise SceneError(f"unknown scene {str(name_or_path)!r}: give a path to a .toml file or "
-                             f"one of the shipped scenes {shipped_scenes()}")
-        path = SCENES_DIR / f"{name_or_path}.toml"
-    elif relative_to is not None and not path.is_absolute():
+    if relative_to is not None and not path.is_absolute():
         path = relative_to.parent / path
+    if text in shipped_scenes():
+        shipped = SCENES_DIR / f"{text}.toml"
+        shadowed = [p for p in (path, path.with_name(path.name + ".toml"))
+                    if p.is_file() and p.resolve() != shipped.resolve()]
+        if shadowed:
+            log.warning("%r is a shipped scene and %s is a file: running the shipped scene; to run the file, "
+                        "give its path, e.g. %s", text, shadowed[0], _explicit_path(shadowed[0], relative_to))
+        return shipped
+    if path.is_dir():
+        raise SceneError(f"scene {text!r} is a folder, not a scene file: give a .toml file or one of the "
+                         f"shipped scenes {shipped_scenes()}")
     if not path.is_file():
-        raise SceneError(f"scene file {str(path)!r} does not exist")
+        if path.suffix != ".toml" and "/" not in text and "\\" not in text:
+            hint = did_you_mean(text, shipped_scenes())
+            raise SceneError(f"unknown scene {text!r}" + (f" ({hint})" if hint else "")
+                             + f": give a path to a .toml file or one of the shipped scenes {shipped_scenes()}")
+        named = f"; the shipped scene is {path.stem!r}" if path.stem in shipped_scenes() else ""
+        raise SceneError(f"scene file {str(path)!r} does not exist{named}")
     return path
+
+
+def _explicit_path(path: Path, relative_to: Path | None) -> str:
+    """``path`` spelt so that it cannot be read as a scene name (``./fsw``)."""
+    if path.is_absolute() or relative_to is not None:
+        return str(path)
+    return f".{os.sep}{path}"
 
 
 def _scene_table(path: Path, chain: tuple) -> dict:

@@ -254,7 +254,7 @@ class Material(_Section):
     K: float = 2.69e16
     A: float = -3.3155
     n: float = 0.1324
-    eps0: float = 1e-2
+    eps0: float = 0.1
     rho: float = 2780.0
     Cp: float = 920.0
     k: float = 140.0
