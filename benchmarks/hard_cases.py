@@ -495,7 +495,8 @@ def order(p, problem="cubic"):
     """ANM of order p (tol 1e-12) for 5 steps of 1e-2 on the cubic relaxation or on heat_1d(8)."""
     prob = cubic_relaxation() if problem == "cubic" else heat_1d(8)
     return _run_case(
-        f"series order {p} ({problem})", lambda: _model_integrate(prob, jaxanm.ANM.paper(order=p, tol=1e-12), 0.05, 1e-2)
+        f"series order {p} ({problem})",
+        lambda: _model_integrate(prob, jaxanm.ANM.paper(order=p, tol=1e-12), 0.05, 1e-2),
     )
 
 

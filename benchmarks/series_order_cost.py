@@ -149,7 +149,7 @@ def _order_cost(fns, xd, c, args, order: int) -> dict | None:
         k = order - 1
         orders[1:k] = [first] * (k - 1)  # any values: the cost does not depend on them
         call_args = (np.int32(k), xd, c, orders, mirrored(orders, fns.zeros, k), values, *args)
-        fn = fns.order(False)
+        fn = fns.order(False, len(orders))
     elif hasattr(fns, "truncated"):  # a jet of the rest per number of terms (before)
         f0 = fns.frontier(xd, *args)
         stack = fns.grown(f0, None, 6)
