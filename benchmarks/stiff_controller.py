@@ -167,6 +167,34 @@ def table(rows: list[dict], reference: str) -> str:
     return "\n".join(lines)
 
 
+TARGETS = {"factorizations": 1.5, "wall_s": 1.2}
+"""The ANM against modified Newton under the controller: at most these ratios of factorisations
+and of wall time (the ``defaults`` set's solvers against its reference)."""
+LABELS = {"factorizations": "factorisations", "wall_s": "wall"}
+
+
+def verdict(rows: list[dict], reference: str, meta: dict, source: str) -> str:
+    """Per solver, the largest ratios to ``reference`` over the problems against
+    :data:`TARGETS` (CPU time beside the wall: under load the wall also holds waiting), and
+    the error at t1 against the reference's (the controller's time error, which both share)."""
+    ref = {(r["problem"], r["controller"]): r for r in rows if r["solver"] == reference}
+    lines = [f"Against `{reference}` ({source}; load {meta['loadavg_start'][0]:.1f} to "
+             f"{meta['loadavg_end'][0]:.1f}); targets: factorisations <= {TARGETS['factorizations']}x, "
+             f"wall <= {TARGETS['wall_s']}x, on every problem.\n",
+             "| solver | factorisations, largest ratio | wall, largest ratio | CPU, largest ratio | "
+             "error at t1 / reference's, range | targets |", "| --- | --- | --- | --- | --- | --- |"]
+    for solver in dict.fromkeys(r["solver"] for r in rows if r["solver"] != reference):
+        mine = [(r, ref[(r["problem"], r["controller"])]) for r in rows if r["solver"] == solver]
+        worst = {k: max(((r[k] / m[k], r["problem"]) for r, m in mine)) for k in ("factorizations", "wall_s", "cpu_s")}
+        errors = [r["error"] / m["error"] for r, m in mine]
+        missed = [f"{LABELS[k]} on {', '.join(r['problem'] for r, m in mine if r[k] / m[k] > limit)}"
+                  for k, limit in TARGETS.items() if worst[k][0] > limit]
+        cells = [f"{worst[k][0]:.2f} ({worst[k][1]})" for k in ("factorizations", "wall_s", "cpu_s")]
+        lines.append(f"| {solver} | " + " | ".join(cells) + f" | {min(errors):.2f}-{max(errors):.2f} | "
+                     + ("held" if not missed else "missed: " + "; ".join(missed)) + " |")
+    return "\n".join(lines)
+
+
 def _json_number(v: float):
     """``v``, or the string "inf" (JSON has no infinity)."""
     return v if math.isfinite(v) else "inf"
@@ -237,6 +265,15 @@ def main() -> None:
           f"load {meta['loadavg_start'][0]:.1f} at the start, {meta['loadavg_end'][0]:.1f} at the end "
           f"(per run in the JSON). Wall and CPU: medians of {args.repeats} alternated runs; "
           "counts are the same in every run.\n\n" + table(rows, list(solvers)[-1]) + "\n")
+    if args.set == "defaults":
+        md += "\n## The targets\n\n" + verdict(rows, list(solvers)[-1], meta, "this run") + "\n"
+    defaults = out.parent / "anm_defaults.json"
+    if args.set == "controller" and defaults.exists():  # the ANM's defaults, measured by --set defaults
+        run = json.loads(defaults.read_text())
+        md += ("\n## The ANM's defaults under this controller\n\n`ANM()` and `ANM(order=7, tol=1e-8)` "
+               "against `ModifiedNewton(tol=1e-8)` under the controller's defaults ([anm_defaults.md]"
+               "(anm_defaults.md): `" + run["meta"]["command"] + "`).\n\n"
+               + verdict(run["rows"], list(SETS["defaults"])[-1], run["meta"], "anm_defaults.json") + "\n")
     out.with_suffix(".md").write_text(md)
     print(md)
 
