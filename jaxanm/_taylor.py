@@ -303,10 +303,6 @@ def _exp_base(ctx, base, y, v):  # v = base^y = exp(y log base): v' = log(base) 
                                       + _cauchy(ctx, y, v, weighted=True) / ctx.k)
 
 
-def _sqrt(ctx, u, w):  # w^2 = u
-    return (ctx.coefficient(u) - _cauchy(ctx, w, w)) / (2.0 * ctx.value(w))
-
-
 _RECURRENCES: dict[str, tuple[Callable, tuple, tuple]] = {
     # name: (rule(ctx, *operands, output), histories read, values read); -1 is the output
     "mul": (_mul, (0, 1), (0, 1)),
@@ -319,7 +315,10 @@ _RECURRENCES: dict[str, tuple[Callable, tuple, tuple]] = {
     "exp_base": (_exp_base, (1, -1), (-1,)),
     "integer_pow": (_square, (0,), (0,)),  # y = 2 (other powers: by jet)
     "square": (_square, (0,), (0,)),
-    "sqrt": (_sqrt, (-1,), (-1,)),
+    # sqrt as the power 1/2, as jet does (exp of half the log): the recurrence of w^2 = u finds
+    # 2 w_0 w_k as u_k minus the products of the lower orders, which cancel near u_0 = 0 (a
+    # branch of u - sqrt(lam) followed towards lam = 0 lost its accuracy at lam ~ 1e-6)
+    "sqrt": (lambda ctx, u, w: _power(ctx, u, w, 0.5), (0, -1), (0, -1)),
     "rsqrt": (lambda ctx, u, w: _power(ctx, u, w, -0.5), (0, -1), (0, -1)),
     "abs": (lambda ctx, u, w: jnp.sign(ctx.value(u)) * ctx.coefficient(u), (), (0,)),
 }
