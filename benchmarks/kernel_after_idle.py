@@ -12,7 +12,7 @@ solves on fsw_paper's cloud in four conditions, medians over ``--repeats`` calls
     python benchmarks/kernel_after_idle.py
     taskset -c 0 python benchmarks/kernel_after_idle.py   # the same on one CPU
 
-The MLS kernels (:func:`jaxanm.mls._run_kernel`) are called with the inputs a stencil rebuild
+The MLS kernels (:func:`jaxanm.mls._kernel.run_kernel`) are called with the inputs a stencil rebuild
 of the cloud gives them; the solves are the refit's (7 solves of 3 right-hand sides with the
 SuperLU factors of the value matrix).
 """
@@ -25,26 +25,27 @@ import time
 
 import numpy as np
 
-from jaxanm import mls
 from jaxanm._factorization import sparse_lu
 from jaxanm.fsw import discretise, load_scene
 from jaxanm.fsw.geometry import cloud_stencils
+from jaxanm.mls import _stencils, value_matrix
+from jaxanm.mls._kernel import run_kernel
 
 
 def kernel_inputs(points, n_tool, geometry, m_max):
-    """The arguments :func:`jaxanm.mls._run_kernel` gets in a rebuild of the cloud's stencils."""
+    """The arguments :func:`jaxanm.mls._kernel.run_kernel` gets in a rebuild of the cloud's stencils."""
     captured = []
-    original = mls._run_kernel
+    original = _stencils.run_kernel  # the name the stencil builder calls
 
     def capture(*args):
         captured.append(args)
         return original(*args)
 
-    mls._run_kernel = capture
+    _stencils.run_kernel = capture
     try:
         cloud_stencils(points, n_tool, geometry, m_max=m_max)
     finally:
-        mls._run_kernel = original
+        _stencils.run_kernel = original
     return captured[0][:6]  # x, y, mask, h, c, q (without the derivatives flag)
 
 
@@ -74,15 +75,15 @@ def main() -> None:
     scene = load_scene("fsw_paper")
     cloud, stencils, _, _, _ = discretise(scene)
     inputs = kernel_inputs(cloud.points, cloud.n_tool, scene.geometry, stencils.index.shape[1])
-    lu = sparse_lu(mls.value_matrix(stencils))
+    lu = sparse_lu(value_matrix(stencils))
     rhs = np.random.default_rng(0).random((cloud.size, 3))
     memory = np.ones(8_000_000)  # 64 MB, more than this machine's caches
 
     def kernel():
-        np.asarray(mls._run_kernel(*inputs, derivatives=True)[0])
+        np.asarray(run_kernel(*inputs, derivatives=True)[0])
 
     def value_kernel():
-        np.asarray(mls._run_kernel(*inputs, derivatives=False)[0])
+        np.asarray(run_kernel(*inputs, derivatives=False)[0])
 
     def solves():
         for _ in range(7):

@@ -45,6 +45,11 @@ except ImportError:  # an older checkout: the hook was simulate._Recorder
     from jaxanm.fsw import simulate as sim
     Hook = sim._Recorder
 
+try:  # the compiled kernel's module since jaxanm.mls became a package
+    from jaxanm.mls._kernel import run_kernel
+except ImportError:  # an older checkout: one module jaxanm/mls.py
+    run_kernel = mls._run_kernel
+
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 """Where the committed benchmark outputs live."""
 
@@ -130,10 +135,10 @@ def profile(recorder, t, x, params, repeats: int) -> dict:
     x_loc = (apart[:, 0][index] - apart[:, :1]) / h[:, None]
     y_loc = (apart[:, 1][index] - apart[:, 1:]) / h[:, None]
     # the kernel took (n, m, 2) local coordinates before issue 14's single-call kernel, x and y after
-    kernel_args = ((x_loc, y_loc) if "y" in inspect.signature(mls._run_kernel).parameters
+    kernel_args = ((x_loc, y_loc) if "y" in inspect.signature(run_kernel).parameters
                    else (np.stack([x_loc, y_loc], axis=-1),))
     parts["  MLS kernel (_run_kernel)"] = median_ms(
-        lambda _: mls._run_kernel(*kernel_args, mask, h, float(g.c), int(g.q)), repeats)
+        lambda _: run_kernel(*kernel_args, mask, h, float(g.c), int(g.q)), repeats)
     parts["params"] = median_ms(lambda _: model.params(moved, new_st), repeats)
     parts["refit (fit_state, new splu)"] = median_ms(lambda _: model.fit_state(values, new_st), repeats)
     if hasattr(recorder, "refit"):  # preconditioned by the previous step's factorisation, as the hook does

@@ -23,8 +23,11 @@ from ._solver import ANM, ModifiedNewton, Newton, SolverState, StepSolver, make_
 from ._step_control import StepController
 from ._x64 import float64
 from .bordered import ContinuationFailure
-from .continuation import Branch, BranchPoints, continuation, newton_continuation
+from .branch import Branch, BranchPoints
+from .continuation import continuation, newton_continuation
+from .critical import critical_load
 from .errors import InputError, NonFiniteError, SingularMatrixError, StepFailure
+from .events import Event, StepEnd
 from .jacobian import SparseJacobian, color_columns, detect_sparsity
 from .sensitivity import ForwardSensitivity, Sensitivities, sensitivities, value_and_grad
 from .stats import Stats
@@ -35,6 +38,7 @@ __all__ = [
     "BranchPoints",
     "ConstantStepSize",
     "ContinuationFailure",
+    "Event",
     "Factorization",
     "ForwardSensitivity",
     "InputError",
@@ -51,10 +55,12 @@ __all__ = [
     "SparseJacobian",
     "Stats",
     "StepController",
+    "StepEnd",
     "StepFailure",
     "StepSolver",
     "color_columns",
     "continuation",
+    "critical_load",
     "detect_sparsity",
     "evaluate_series",
     "factorize",

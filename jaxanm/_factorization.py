@@ -134,16 +134,17 @@ class Factorization:
                 raise SingularMatrixError("tangent matrix has non-finite entries")
         self.matrix = matrix
         self.shape = matrix.shape
-        self._solve = self._factors(matrix)
+        self._solve, self._lu = self._factors(matrix)
 
     @staticmethod
     def _factors(matrix):
-        """The solve function of the LU factors of ``matrix`` (validated, finite)."""
+        """The solve function of the LU factors of ``matrix`` (validated, finite), and the factors."""
         if scipy.sparse.issparse(matrix):
             try:
-                return sparse_lu(matrix).solve
+                lu = sparse_lu(matrix)
             except RuntimeError as exc:  # "Factor is exactly singular"
                 raise SingularMatrixError(f"sparse LU failed: {exc}") from exc
+            return lu.solve, lu
         with warnings.catch_warnings():
             warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
             try:
@@ -152,7 +153,7 @@ class Factorization:
                 raise SingularMatrixError(f"dense LU: {exc}") from exc
         if np.any(np.diag(lu_piv[0]) == 0.0):
             raise SingularMatrixError("dense LU: matrix is exactly singular")
-        return lambda b: scipy.linalg.lu_solve(lu_piv, b, check_finite=False)
+        return (lambda b: scipy.linalg.lu_solve(lu_piv, b, check_finite=False)), lu_piv
 
     @property
     def released(self) -> bool:
@@ -167,12 +168,19 @@ class Factorization:
         the rule of :class:`~jaxanm.StepSolver`.  A later :meth:`solve` factorises the same
         matrix again, to the same factors (:func:`counted_solve` counts that factorisation).
         """
-        self._solve = None
+        self._solve = self._lu = None
 
     def refactor(self) -> None:
         """Make the factors again from the kept matrix if they were released (else nothing)."""
         if self._solve is None:
-            self._solve = self._factors(self.matrix)
+            self._solve, self._lu = self._factors(self.matrix)
+
+    def slogdet(self) -> tuple[float, float]:
+        """``(sign, log|det K*|)`` read off the factors (made again if released), as
+        ``numpy.linalg.slogdet``: U's diagonal and the parities of the row and column
+        permutations.  Path following watches the sign for branch points (:mod:`jaxanm.events`)."""
+        self.refactor()
+        return slogdet(self._lu)
 
     def solve(self, rhs) -> np.ndarray:
         """Solve ``K* x = rhs`` with the stored factors (host, float64); ``rhs`` of shape (n,)
@@ -180,6 +188,33 @@ class Factorization:
         rhs = np.asarray(rhs, dtype=np.float64)
         self.refactor()
         return self._solve(rhs)
+
+
+def permutation_parity(perm) -> int:
+    """+1 for an even permutation ``perm`` of ``0..n-1``, -1 for an odd one: ``(-1)^(n - cycles)``,
+    the cycles counted by labelling each index with the smallest index of its cycle (pointer
+    jumping: O(n log n), vectorised)."""
+    perm = np.asarray(perm, dtype=np.int64)
+    label, jump = np.arange(perm.size), perm.copy()
+    for _ in range(max(1, int(np.ceil(np.log2(max(perm.size, 2))))) + 1):
+        label = np.minimum(label, label[jump])
+        jump = jump[jump]
+    cycles = int(np.count_nonzero(label == np.arange(perm.size)))
+    return -1 if (perm.size - cycles) % 2 else 1
+
+
+def slogdet(lu) -> tuple[float, float]:
+    """``(sign, log|det|)`` of the matrix whose LU factors ``lu`` are: a dense ``lu_factor``
+    pair, a SuperLU object (``Pr A Pc = L U``, L unit lower) or a :class:`NestedDissectionLU`
+    (``P A P^T``, whose determinant is ``A``'s)."""
+    if isinstance(lu, tuple):
+        diagonal, pivots = np.diag(lu[0]), lu[1]
+        parity = (-1) ** int(np.count_nonzero(pivots != np.arange(pivots.size)))
+    else:
+        inner = lu._lu if isinstance(lu, NestedDissectionLU) else lu
+        diagonal = inner.U.diagonal()
+        parity = permutation_parity(inner.perm_r) * permutation_parity(inner.perm_c)
+    return float(parity * np.prod(np.sign(diagonal))), float(np.sum(np.log(np.abs(diagonal))))
 
 
 def factorize(matrix, stats: Stats) -> Factorization:

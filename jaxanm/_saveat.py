@@ -9,6 +9,7 @@ from typing import Callable
 
 import numpy as np
 
+from ._checks import flag, integer
 from .errors import InputError
 
 
@@ -54,8 +55,9 @@ class SaveAt:
     def __post_init__(self):
         if self.ts is not None and self.steps is not None:
             raise InputError("give SaveAt(ts=...) or SaveAt(steps=...), not both")
-        if self.steps is not None and not (isinstance(self.steps, int) and self.steps >= 1):
-            raise InputError(f"SaveAt steps must be an integer >= 1, got {self.steps!r}")
+        if self.steps is not None:
+            integer("SaveAt.steps", self.steps, 1, hint="save every steps-th step")
+        flag("SaveAt.params", self.params)
         if self.ts is not None:
             ts = np.atleast_1d(np.asarray(self.ts, dtype=np.float64))
             if ts.ndim != 1 or not np.all(np.isfinite(ts)):

@@ -30,12 +30,15 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
+from . import _checks as checks
+from ._acceptance import CHECK_LIMIT
 from ._factorization import Factorization, counted_solve
 from ._factorization import factorize as counted_factorize
 from ._problem import Problem, compiled
 from ._run_inputs import jacobian_kind, on_device, params_float64
 from ._series import AffinePath
-from .errors import InputError, SingularMatrixError, StepFailure, _number
+from .errors import InputError, SingularMatrixError, StepFailure
+from .errors import format_number as _number
 from .jacobian import detect_sparsity
 from .stats import Stats
 
@@ -44,12 +47,16 @@ START_ITERATIONS = 20
 
 
 class ContinuationFailure(StepFailure):
-    """A continuation step failed: a :class:`~jaxanm.StepFailure` located by the step and the
-    parameter ``lam`` there (also in ``t``, for code that handles time steps)."""
+    """Why a continuation step could not be completed: a :class:`~jaxanm.StepFailure` located
+    by the step and the parameter ``lam`` there (also in ``t``, for code that handles time
+    steps), with ``code``, the short reason a :class:`~jaxanm.Branch` ends with
+    (:attr:`~jaxanm.Branch.stopped`).  The path followers catch it and return the branch they
+    found; it is raised to the caller only for a starting point that cannot be used."""
 
-    def __init__(self, reason: str, *, step: int, lam: float, amax=None, residual_norm=None):
+    def __init__(self, reason: str, *, step: int, lam: float, amax=None, residual_norm=None,
+                 code: str = "singular"):
         super().__init__(reason, step=step, t=lam, amax=amax, residual_norm=residual_norm)
-        self.lam = float(lam)
+        self.lam, self.code = float(lam), code
         self.args = (f"continuation step {step} (lam = {self.lam:.8g}): {reason}; a_max = {_number(self.amax)}, "
                      f"|R|_inf = {_number(self.residual_norm)}",)
 
@@ -126,20 +133,16 @@ def check_inputs(residual, u0, lam0, params, *, lam_end, stop_at, max_steps, tol
             raise InputError(f"lam_end equals lam0 = {lam0!r}: the branch would stop where it starts")
         ends.append((n, lam_end))
     if stop_at is not None:
-        if not (isinstance(stop_at, tuple) and len(stop_at) == 2 and isinstance(stop_at[0], (int, np.integer))
-                and -n <= stop_at[0] < n):
+        if not (isinstance(stop_at, tuple) and len(stop_at) == 2):
             raise InputError(f"stop_at must be a pair (index of u in [0, {n}), value), got {stop_at!r}")
-        index = int(stop_at[0]) % n
+        index = checks.integer("stop_at[0]", stop_at[0], -n, n - 1, hint="the index of the monitored unknown") % n
         value = _finite_number("stop_at[1]", stop_at[1], "the value of u[index] where the branch stops")
         if value == u0[index]:
             raise InputError(f"stop_at: u0[{index}] already equals {value!r}; the branch would stop where it starts")
         ends.append((index, value))
-    if not (isinstance(max_steps, (int, np.integer)) and not isinstance(max_steps, bool) and max_steps >= 1):
-        raise InputError(f"max_steps must be an integer >= 1, got {max_steps!r}")
-    if not (isinstance(tol, (int, float, np.floating)) and math.isfinite(tol) and 0 < tol < 1):
-        raise InputError(f"tol must be a float in (0, 1), got {tol!r}; e.g. tol=1e-8")
-    if jacobian not in ("auto", "dense", "sparse"):
-        raise InputError(f"jacobian must be 'auto', 'dense' or 'sparse', got {jacobian!r}")
+    checks.integer("max_steps", max_steps, 1)
+    checks.real("tol", tol, 0.0, 1.0, open_low=True, open_high=True, hint="e.g. tol=1e-8")
+    checks.choice("jacobian", jacobian, ("auto", "dense", "sparse"))
     if sparsity is not None and not (callable(sparsity) or scipy.sparse.issparse(sparsity)):
         raise InputError("sparsity must be a scipy sparse (n, n) pattern of R_u, a callable params -> pattern, or None")
     if scipy.sparse.issparse(sparsity) and sparsity.shape != (n, n):
@@ -192,11 +195,27 @@ class Linearisation:
         """``R_U x = R_u x[:-1] + R_lam x[-1]`` (host product with the assembled tangent)."""
         return self.jacobian @ x[:-1] + self.dlam * x[-1]
 
+    def term_sizes(self) -> np.ndarray:
+        """``|R_u| |u| + |R_lam| |lam|`` per equation: how large the terms of R that cancel at a
+        solution are, each known to a relative round-off of eps (the state itself is stored to
+        eps |U|), so that R is computed at best to eps times this."""
+        jac = abs(self.jacobian)
+        return np.asarray(jac @ np.abs(self.point[:-1])).ravel() + np.abs(self.dlam) * abs(self.point[-1])
+
+    def slogdet(self) -> tuple[float, float] | None:
+        """``(sign, log|det B|)`` from the factors (None if the factorisation object cannot
+        tell: a ``factorize`` hook's without ``slogdet()``).  With ``z`` oriented by the border
+        (``row . z = 1``) the sign is that of ``det [R_U; z^T]``, which changes along a branch
+        only where R_U loses rank: at branch points, not at folds."""
+        slogdet = getattr(self.fact, "slogdet", None)
+        return None if slogdet is None else slogdet()
+
 
 class ExtendedSystem:
     """``R(U) = 0`` for ``U = (u, lam)``: residuals, linearisations (bordered, factorised,
     counted in ``stats``) and the series of the residual along a path.  ``factorize``: the
-    hook ``(matrix, stats) -> object with solve(rhs)`` (default :func:`jaxanm.factorize`)."""
+    hook ``(matrix, stats) -> object with solve(rhs)`` (default :func:`jaxanm.factorize`).
+    ``residual_function`` and ``params`` are the problem's (read by event location)."""
 
     def __init__(self, residual, U0, params, scale, jacobian: str, sparsity, stats: Stats, factorize=None):
         n = U0.size - 1
@@ -215,6 +234,11 @@ class ExtendedSystem:
         """R_u's pattern from the residual's jaxpr (:func:`jaxanm.detect_sparsity`): it holds for
         every lam (lam's value is not read), an entry with a factor lam included at lam = 0."""
         return detect_sparsity(_step_form(self._residual), U0[:-1], None, np.float64(U0[-1]), None, self.params)
+
+    @property
+    def residual_function(self):
+        """The residual ``(u, lam, params) -> R`` of the problem."""
+        return self._residual
 
     def dot(self, a, b) -> float:
         """Inner product of the scaled unknowns."""
@@ -237,43 +261,89 @@ class ExtendedSystem:
     def residual(self, U) -> np.ndarray:
         """``R(u, lam)`` on the host (counted)."""
         with self.stats.timer("series"):
-            r = np.asarray(compiled(self._residual).residual(U[:-1], np.float64(U[-1]), self.params))
+            r = np.asarray(compiled(self.residual_function).residual(U[:-1], np.float64(U[-1]), self.params))
         self.stats.residual_evaluations += 1
         return r
 
-    def linearise(self, U, row, *, step: int) -> Linearisation:
-        """R, R_u, R_lam at ``U``, the bordered matrix with ``row`` factorised (the previous
-        factors released first: one LU alive); :class:`ContinuationFailure` when R is not finite
-        or B cannot be factorised."""
+    def tangent_parts(self, U, *, step: int):
+        """``(R, R_u, R_lam)`` at ``U`` (R_u dense or sparse, as the system's Jacobian);
+        :class:`ContinuationFailure` (code ``"non_finite"``) when R or R_lam is not finite."""
         st = self.stats
         with st.timer("jacobian"):
-            r, dlam = (np.asarray(v) for v in _value_and_dlam(self._residual)(U[:-1], np.float64(U[-1]), self.params))
+            values = _value_and_dlam(self.residual_function)(U[:-1], np.float64(U[-1]), self.params)
+            r, dlam = (np.asarray(v) for v in values)
         st.residual_evaluations += 1
         r_norm = float(np.max(np.abs(r)))
         if not (np.isfinite(r_norm) and np.all(np.isfinite(dlam))):
-            raise ContinuationFailure("residual or dR/dlam not finite", step=step, lam=U[-1], residual_norm=r_norm)
-        jac = self._problem.tangent(U[:-1], None, np.float64(U[-1]), None, self.params)
-        if self._fact is not None and hasattr(self._fact, "release"):
-            self._fact.release()
+            raise ContinuationFailure("the residual or dR/dlam is not finite", step=step, lam=U[-1],
+                                      residual_norm=r_norm, code="non_finite")
+        return r, self._problem.tangent(U[:-1], None, np.float64(U[-1]), None, self.params), dlam
+
+    def factorise(self, matrix, *, step: int, lam: float, aside: bool = False):
+        """``matrix`` factorised through the system's hook, counted; the factors made before
+        are released first (one LU alive), unless ``aside``: factors made beside the walk's
+        (locating an event), which the caller releases (:func:`release`) when done.
+        :class:`ContinuationFailure` (``"singular"``, or ``"non_finite"`` for non-finite
+        entries) when it cannot be factorised."""
+        if not aside:
+            release(self._fact)
         try:
-            self._fact = self._factorize(_bordered(jac, dlam, row), st)
+            fact = self._factorize(matrix, self.stats)
         except SingularMatrixError as exc:
-            raise ContinuationFailure(f"bordered matrix cannot be factorised ({exc})", step=step, lam=U[-1],
-                                      residual_norm=r_norm) from exc
-        return Linearisation(U, r, jac, dlam, row, self._fact, st)
+            code = "non_finite" if "non-finite" in str(exc) else "singular"
+            raise ContinuationFailure(f"the bordered matrix cannot be factorised ({exc})", step=step, lam=lam,
+                                      code=code) from exc
+        if not aside:
+            self._fact = fact
+        return fact
+
+    def linearise(self, U, row, *, step: int, aside: bool = False) -> Linearisation:
+        """R, R_u, R_lam at ``U``, the bordered matrix with ``row`` factorised
+        (:meth:`factorise`, ``aside`` as there); :class:`ContinuationFailure` when R is not
+        finite or B cannot be factorised."""
+        r, jac, dlam = self.tangent_parts(U, step=step)
+        fact = self.factorise(bordered_matrix(jac, dlam[:, None], row[None, :]), step=step, lam=U[-1], aside=aside)
+        lin = Linearisation(U, r, jac, dlam, row, fact, self.stats)
+        if not np.all(np.isfinite(lin.z)):
+            if aside:
+                release(fact)
+            raise ContinuationFailure("the tangent is not finite (the bordered matrix is numerically singular)",
+                                      step=step, lam=U[-1], residual_norm=float(np.max(np.abs(r))))
+        return lin
+
+    def round_off(self, lin: Linearisation, row) -> float:
+        """A bound on how far from the branch round-off can leave a point, in the scaled norm:
+        the correction ``B^-1 (eps s T)`` under the constraint ``row`` (one solve), T the sizes of
+        R's terms (:meth:`Linearisation.term_sizes`), s signs drawn once per size (errors of
+        the rows add like random ones).  It bounds what Newton's corrections stall at; they
+        stall lower where R's differences of nearby values are exact (stencils on smooth
+        states: measured 0.002 to 0.1 of it on the 1D Bratu problem)."""
+        signs = np.random.default_rng(self.n).choice([-1.0, 1.0], self.n)
+        return self.norm(lin.constrained(np.finfo(float).eps * signs * lin.term_sizes(), row))
 
     def path(self, point, max_terms: int) -> "PathSeries":
         """The residual's series along a path from ``point`` (:class:`PathSeries`)."""
         return PathSeries(self, point, max_terms)
 
 
-def _bordered(jac, dlam, row):
-    """``[[R_u, R_lam], [row]]``: CSC when R_u is sparse, else a dense array."""
-    if scipy.sparse.issparse(jac):
-        column = scipy.sparse.csc_matrix(dlam[:, None])
-        corner = scipy.sparse.csc_matrix(row[None, -1:])
-        return scipy.sparse.bmat([[jac, column], [scipy.sparse.csc_matrix(row[None, :-1]), corner]], format="csc")
-    return np.block([[np.asarray(jac), dlam[:, None]], [row[None, :]]])
+def release(fact) -> None:
+    """Free a factorisation's LU (if it can: a hook's object may not)."""
+    if fact is not None and hasattr(fact, "release"):
+        fact.release()
+
+
+def bordered_matrix(top_left, right, bottom, corner=None):
+    """``[[top_left, right], [bottom, corner]]`` (corner zeros by default): CSC when
+    ``top_left`` is sparse, else a dense array.  ``right`` (n, k) and ``bottom`` (k, m + k)
+    are dense, ``bottom``'s last k columns the corner's unless ``corner`` is given."""
+    k = right.shape[1]
+    if corner is None:
+        bottom, corner = bottom[:, :-k], bottom[:, -k:]
+    if scipy.sparse.issparse(top_left):
+        blocks = [[top_left, scipy.sparse.csc_matrix(right)],
+                  [scipy.sparse.csc_matrix(bottom), scipy.sparse.csc_matrix(corner)]]
+        return scipy.sparse.bmat(blocks, format="csc")
+    return np.block([[np.asarray(top_left), right], [bottom, corner]])
 
 
 class PathSeries:
@@ -293,7 +363,7 @@ class PathSeries:
     def __init__(self, system: ExtendedSystem, point, max_terms: int):
         self._system, self._point = system, point
         self._terms: list[np.ndarray] = []
-        joint = joint_function(system._residual)
+        joint = joint_function(system.residual_function)
         args = (system.params,)
         with system.stats.timer("series"):
             fns = compiled(joint).affine_functions(point, args)
@@ -314,24 +384,61 @@ class PathSeries:
         return f
 
 
-def corrected_start(system: ExtendedSystem, U0, direction: int, tol: float) -> Linearisation:
-    """The linearisation at the starting point, bordered by ``direction`` e_lam (its kernel
-    vector points towards ``direction`` lam); ``u0`` is first brought onto the branch by Newton
-    at fixed lam0 while its Newton correction exceeds ``tol`` (scaled norm), each iteration a
-    counted factorisation (``stats.newton_iterations``)."""
-    row = system.axis_row(system.n, float(direction))
-    U = np.array(U0, dtype=np.float64)
-    for iteration in range(START_ITERATIONS + 1):
-        lin = system.linearise(U, row, step=0)
-        dU = lin.solve(-lin.residual)  # the border row keeps lam fixed
+def settle(system: ExtendedSystem, lin: Linearisation, constraint, target: float, *, step: int,
+           max_iterations: int = START_ITERATIONS):
+    """Newton at ``lin.point`` (under ``constraint``, a border row: ``constraint . dU = 0``, and
+    re-linearised with ``lin.row`` at each iterate, counted) until its correction is at most
+    ``target`` (scaled): ``(linearisation at the point, last correction, iterations)``.
+
+    Corrections that stop at least halving have reached the point's round-off floor: that
+    floor is accepted within ``CHECK_LIMIT`` times ``target``; above, the walk cannot keep its
+    promise there: :class:`ContinuationFailure` ``"round_off"`` when round-off of R's terms can
+    give so large a correction (:meth:`ExtendedSystem.round_off`, a bound), else
+    ``"corrector"`` (Newton does not converge), as after ``max_iterations``."""
+    previous = np.inf
+    for iteration in range(max_iterations + 1):
+        dU = lin.constrained(-lin.residual, constraint)
         size = system.norm(dU)
-        if size <= tol:
-            return lin
-        if iteration == START_ITERATIONS or not np.isfinite(size):
-            raise ContinuationFailure(f"u0 is not a solution at lam0 and Newton at fixed lam0 did not bring it "
-                                      f"there in {START_ITERATIONS} iterations (last correction {size:.3g}); give "
-                                      "a point on the branch", step=0, lam=U[-1],
-                                      residual_norm=float(np.max(np.abs(lin.residual))))
-        U = U + dU
-        system.stats.newton_iterations += 1
+        if size <= target:
+            return lin, size, iteration
+        if not (np.isfinite(size) and size <= 0.5 * previous) or iteration == max_iterations:
+            if size <= CHECK_LIMIT * target:
+                return lin, size, iteration
+            raise _not_settled(system, lin, constraint, size, target, step, iteration)
+        previous = size
+        lin = system.linearise(lin.point + dU, lin.row, step=step)
     raise AssertionError("unreachable")
+
+
+def _not_settled(system, lin, constraint, size, target, step, iterations) -> ContinuationFailure:
+    """Why Newton's corrections stall at ``size`` above ``target``: round-off (when its bound
+    reaches that far) or a corrector that does not converge."""
+    bound = system.round_off(lin, constraint) if np.isfinite(size) else 0.0
+    lam, norm = lin.point[-1], float(np.max(np.abs(lin.residual)))
+    if size <= CHECK_LIMIT * bound:
+        return ContinuationFailure(f"Newton's corrections stall at {size:.2g} (scaled) from the branch, within "
+                                   f"round-off of R's terms ({bound:.2g}), above the accuracy the steps promise "
+                                   f"({target:.2g})", step=step, lam=lam, residual_norm=norm, code="round_off")
+    return ContinuationFailure(f"Newton does not bring the point onto the branch (correction {size:.3g} after "
+                               f"{iterations} iterations)", step=step, lam=lam, residual_norm=norm, code="corrector")
+
+
+def corrected_start(system: ExtendedSystem, U0, direction: int, tol: float):
+    """The linearisation at the starting point, bordered by ``direction`` e_lam (its kernel
+    vector points towards ``direction`` lam), its distance from the branch (Newton's last
+    correction) and the Newton iterations it took: ``u0`` is
+    first brought onto the branch by Newton at fixed lam0 while its correction exceeds
+    ``tol`` (scaled norm; :func:`settle`).  A start that cannot be used is the caller's to
+    change: :class:`InputError` saying why."""
+    row = system.axis_row(system.n, float(direction))
+    try:
+        lin = system.linearise(np.array(U0, dtype=np.float64), row, step=0)
+        lin, distance, iterations = settle(system, lin, system.axis_row(system.n), tol, step=0)
+    except ContinuationFailure as failure:
+        fix = {"non_finite": "the residual is not finite at (u0, lam0) or on Newton's way from it: give a point "
+                             "inside its domain",
+               "singular": "the bordered matrix is singular at (u0, lam0): a branch point or a degenerate R_lam; start "
+                           "beside it (or from a branch-point event with start=)"}
+        raise InputError(f"u0 is not a usable starting point at lam0 = {U0[-1]:.8g}: {failure.reason}; "
+                         + fix.get(failure.code, "give a point on the branch (a solution at lam0)")) from failure
+    return lin, distance, iterations

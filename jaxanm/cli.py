@@ -49,10 +49,10 @@ import argparse
 import json
 import logging
 import sys
-import time
 from pathlib import Path
 
 from jaxanm import compile_cache
+from jaxanm._progress import ProgressBar
 from jaxanm.errors import InputError, SingularMatrixError, StepFailure, did_you_mean
 from jaxanm.fsw.scene import SOLVER_NAMES, SOLVER_OPTIONS, override_keys
 
@@ -216,33 +216,6 @@ def _check_solver_options(scene, overrides: dict, order_given: bool) -> None:
                                             ", ".join(unused), kind, ", ".join(takes))
 
 
-class ProgressBar:
-    """tqdm bar over simulated time, driven by ``callback(t, stats)`` after each accepted step.
-
-    Shows t / t_end (s), elapsed and remaining wall time, time steps per wall second and the
-    factorisations done so far.
-    """
-
-    def __init__(self, t_end: float, label: str):
-        from tqdm import tqdm
-
-        self.start = time.perf_counter()
-        self.bar = tqdm(total=t_end, desc=label, unit="s", dynamic_ncols=True,
-                        bar_format="{desc}: {percentage:3.0f}%|{bar}| t = {n:.4g}/{total:.4g} s "
-                                   "[{elapsed}<{remaining}{postfix}]")
-
-    def __call__(self, t, stats) -> None:
-        """Advance the bar to simulated time ``t`` and show the statistics of ``stats``."""
-        rate = stats.time_steps / max(time.perf_counter() - self.start, 1e-9)
-        self.bar.set_postfix_str(f"{rate:.1f} steps/s, {stats.factorizations} factorizations",
-                                 refresh=False)
-        self.bar.update(float(t) - self.bar.n)
-
-    def close(self) -> None:
-        """Close the bar (leaves its last state on the terminal)."""
-        self.bar.close()
-
-
 def _load_scene(name_or_path):
     """:func:`jaxanm.fsw.scene.load_scene` (imported on first use)."""
     from jaxanm.fsw.scene import load_scene
@@ -329,23 +302,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if every or args.resume is not None:
         checkpointing = {"checkpoint": out_dir / CHECKPOINT_NAME, "checkpoint_every": every,
                          "resume": args.resume is not None}
-    bar = None if args.no_progress else ProgressBar(scene.time.t_end, scene.name)
     try:
-        result = _simulate(scene, bar, **checkpointing)
-    except KeyboardInterrupt as exc:
-        if bar is not None:
-            bar.close()
-            bar = None
+        with ProgressBar(scene.time.t_end, scene.name, disable=args.no_progress) as bar:
+            result = _simulate(scene, bar, **checkpointing)
+    except KeyboardInterrupt as exc:  # the bar is closed: the error line follows it
         return _error(_stopped("interrupted", exc, out_dir, scene, checkpointing), 130)
     except (StepFailure, SingularMatrixError) as exc:
-        if bar is not None:
-            bar.close()
-            bar = None
         return _error(_stopped(f"solver failed: {exc}", exc, out_dir, scene, checkpointing)
                       + what_to_try(scene, exc), 1)
-    finally:
-        if bar is not None:
-            bar.close()
     try:
         paths = _write_run(result, out_dir, scene)
     except OSError as exc:

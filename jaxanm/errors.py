@@ -5,10 +5,6 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Iterable
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from ._solver.base import SolverState
 
 
 class InputError(ValueError):
@@ -31,7 +27,7 @@ def did_you_mean(word: str, choices: Iterable[str], cutoff: float = 0.6, prefix:
     return f"did you mean {' or '.join(repr(c) for c in closest)}?"
 
 
-def _number(value) -> str:
+def format_number(value) -> str:
     """``value`` for a message: 3 significant digits, ``n/a`` when unknown (``None``)."""
     if value is None:
         return "n/a"
@@ -55,8 +51,9 @@ class StepFailure(RuntimeError):
     """
 
     # set by a step solver on a failure inside its step: the state to retry from (absent
-    # otherwise, hence read with getattr)
-    solver_state: SolverState
+    # otherwise, hence read with getattr).  Its type, jaxanm._solver.base.SolverState, is the
+    # step solvers' own: errors.py imports no module of the package, so every module may import it
+    solver_state: object
 
     def __init__(self, reason: str, *, step: int, t: float, amax=None, residual_norm=None):
         self.reason = reason
@@ -65,7 +62,7 @@ class StepFailure(RuntimeError):
         self.amax = None if amax is None else float(amax)
         self.residual_norm = None if residual_norm is None else float(residual_norm)
         super().__init__(f"step {step} (t = {self.t:.6g}): {reason}; "
-                         f"a_max = {_number(self.amax)}, |R|_inf = {_number(self.residual_norm)}")
+                         f"a_max = {format_number(self.amax)}, |R|_inf = {format_number(self.residual_norm)}")
 
 
 class NonFiniteError(StepFailure):

@@ -183,7 +183,7 @@ def test_newtonian_temperature_rise_at_a_coarse_cloud():
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, raises=AssertionError,
-                   reason="issue 15: at the paper's n the heat rows store more than the discrete "
+                   reason="at the paper's n the heat rows store more than the discrete "
                           "flow dissipates at fine dr (1.06 beta int P_h dt at K = 16, 0.87 at K = 8), which "
                           "offsets the flow's falling over-dissipation: the rise error stalls near 14 %")
 def test_paper_exponent_temperature_rise_converges_to_the_oracle():

@@ -173,6 +173,12 @@ def test_fsw_bad_input_gives_clear_errors():
         calibration.scene_value_and_grad(_fsw_loss, lagrangian, theta)
     with pytest.raises(jaxanm.InputError, match="T0 and omega"):
         calibration.simulate(scene, {"T0": 300.0})
+    with pytest.raises(jaxanm.InputError, match=r"theta\['n'\] must be a number in \(0, 2\], got 0.0"):
+        calibration.simulate(scene, {"n": 0.0})
+    with pytest.raises(jaxanm.InputError, match=r"theta\['K'\] must be a number > 0, got -1.0; or calibrate logK"):
+        calibration.simulate(scene, {"K": -1.0})
+    with pytest.raises(jaxanm.InputError, match=r"sigma\['T'\] must be a number > 0, got 0"):
+        calibration.fit([scene], [{}], theta, sigma={"T": 0})
 
 
 def test_fit_recovers_noiseless_parameters():

@@ -21,6 +21,7 @@ import pytest
 from test_output import fake_result
 
 from jaxanm import cli
+from jaxanm._progress import ProgressBar
 from jaxanm.errors import StepFailure
 from jaxanm.fsw.scene import Scene, shipped_scenes
 from jaxanm.fsw.scene_text import scene_description
@@ -95,7 +96,8 @@ def test_run_writes_outputs_and_prints_summary(tiny, tmp_path, fake_run, capsys)
     assert summary["solver"] == {"kind": "anm", "options": {"order": 7, "tol": 1e-6}}
     assert Scene.from_dict(summary["scene"]) == fake_run["scene"]  # the scene round-trips
     assert (out / "fields.npz").exists() and (out / "fields.pvd").exists()
-    assert fake_run["callback"] is None
+    assert isinstance(fake_run["callback"], ProgressBar) and fake_run["callback"].bar.disable  # shows nothing
+    assert "%|" not in capsys.readouterr().err
     # the CLI guide's table of output files names every file and folder a run writes
     guide = (Path(cli.__file__).resolve().parents[1] / "docs" / "guide" / "cli.md").read_text(encoding="utf-8")
     table = guide[guide.index("### Output files"):guide.index("### Exit status")]
@@ -136,14 +138,14 @@ def test_default_output_directory(tiny, tmp_path, monkeypatch, fake_run, no_file
 
 def test_progress_bar_driven_by_callback(tiny, tmp_path, fake_run, no_files, capsys):
     assert cli.main(["run", str(tiny), "--out", str(tmp_path)]) == 0
-    assert isinstance(fake_run["callback"], cli.ProgressBar)
+    assert isinstance(fake_run["callback"], ProgressBar)
     err = capsys.readouterr().err
     assert "tiny: 100%" in err and "t = 0.001/0.001 s" in err
     assert "steps/s, 3 factorizations" in err
 
 
 def test_progress_bar_tracks_simulated_time():
-    bar = cli.ProgressBar(0.7, "x")
+    bar = ProgressBar(0.7, "x")
     stats = Stats(time_steps=5, factorizations=2)
     bar(0.35, stats)
     assert bar.bar.n == pytest.approx(0.35)
@@ -239,6 +241,22 @@ def test_bad_toml_exits_2(tmp_path, capsys):
     path.write_text("name = [unclosed\n")
     assert cli.main(["run", str(path)]) == 2
     assert "is not valid TOML" in one_error_line(capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("stop, status", [(KeyboardInterrupt, 130), (StepFailure("diverged", step=2, t=2e-4), 1)])
+def test_the_progress_bar_closes_once_before_the_error_line(tiny, tmp_path, monkeypatch, capsys, stop, status):
+    """However the run ends, the bar is closed once, before the error line is printed."""
+    events = []
+    monkeypatch.setattr(ProgressBar, "close", lambda self: events.append("closed"))
+    monkeypatch.setattr(cli, "_error", lambda message, code: events.append("error line") or code)
+
+    def stopping(scene, callback, **checkpointing):
+        callback(scene.time.t_end / 2, Stats(time_steps=1))
+        raise stop
+
+    monkeypatch.setattr(cli, "_simulate", stopping)
+    assert cli.main(["run", str(tiny), "--out", str(tmp_path / "o")]) == status
+    assert events == ["closed", "error line"]
 
 
 def test_solver_failure_exits_1_with_its_message(tiny, tmp_path, monkeypatch, capsys):

@@ -1,4 +1,5 @@
-"""The layout rules of the package's code (issue 17)."""
+"""The layout rules of the package's code: sizes, the import order, the boundaries between
+modules, one owner for each rule that can be checked."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ MAX_FUNCTION_LINES = 80
 
 def test_no_function_longer_than_80_lines():
     """No function in jaxanm/ exceeds 80 lines, from its ``def`` line to its last line,
-    docstring included (issue 17: a function holds one idea a reader follows in one view;
+    docstring included (a function holds one idea a reader follows in one view;
     a longer one is split into named helpers)."""
     too_long = []
     for path in sorted(PACKAGE.rglob("*.py")):
@@ -39,9 +40,10 @@ FSW_IMPORTS = {
     "simulate": {"scene", "geometry", "discretisation", "start", "record", "lagrangian", "stability"},
     # results: files and figures of an FSWResult
     "io": set(),
-    "io.figures": {"scene", "record", "io.weld_figures"},
+    "io.figures": {"scene", "record"},
     "io.weld_figures": {"io.figures"},
-    "io.output": {"scene", "geometry", "record", "axisymmetric", "oscillation", "io", "io.figures"},
+    "io.output": {"scene", "geometry", "record", "axisymmetric", "oscillation", "io", "io.figures",
+                  "io.weld_figures"},
     # analyses of a scene or of results, beside the flow
     "axisymmetric": {"scene"},
     "oscillation": set(),
@@ -99,10 +101,10 @@ def test_fsw_modules_import_only_upstream_modules():
 
 
 def test_the_core_knows_nothing_about_fsw():
-    """No module of the engine (``jaxanm/*.py`` but the command line, and the step solvers of
-    ``jaxanm/_solver/``) imports :mod:`jaxanm.fsw`."""
+    """No module of the engine (``jaxanm/*.py`` but the command line, the step solvers of
+    ``jaxanm/_solver/``, the MLS stencils of ``jaxanm/mls/``) imports :mod:`jaxanm.fsw`."""
     offenders = []
-    for path in sorted([*PACKAGE.glob("*.py"), *PACKAGE.glob("_solver/*.py")]):
+    for path in sorted([*PACKAGE.glob("*.py"), *PACKAGE.glob("_solver/*.py"), *PACKAGE.glob("mls/*.py")]):
         if path.name in ("cli.py", "__main__.py"):
             continue
         for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
@@ -168,3 +170,264 @@ def test_no_module_longer_than_400_lines_of_code():
     too_long = [f"{path.relative_to(PACKAGE.parent)} ({n} lines of code)" for path in sorted(PACKAGE.rglob("*.py"))
                 if (n := _code_lines(path.read_text())) > MAX_MODULE_CODE_LINES]
     assert not too_long, "modules over 400 lines of code:\n" + "\n".join(too_long)
+
+
+# --------------------------------------------------------------------------- boundaries
+
+SUBPACKAGES = ("jaxanm.fsw", "jaxanm.sweep")
+"""Packages built on the core (as a user's model would be): they reach the core's internal
+modules only through :mod:`jaxanm.internal`."""
+
+FACADE = "jaxanm.internal"
+
+
+def _module_name(path: Path) -> str:
+    """``jaxanm/fsw/io/figures.py`` -> ``jaxanm.fsw.io.figures``; a package's ``__init__`` -> the package."""
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {_module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+"""Every module of the package by its dotted name."""
+
+def _import_froms(path: Path, name: str | None = None):
+    """``(line, absolute module, imported name)`` of every import in ``path`` (at the top,
+    inside functions, under ``TYPE_CHECKING``; ``import m`` gives ``(line, m, None)``), with
+    relative modules resolved from the module's ``name`` (default: from its path)."""
+    package = (name or _module_name(path)).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1] if node.level else []
+            module = ".".join(base + ([node.module] if node.module else []))
+            for alias in node.names:
+                yield node.lineno, module, alias.name
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name, None
+
+
+def _imported_modules(path: Path, modules: dict = MODULES, name: str | None = None) -> set:
+    """The ``modules`` the module at ``path`` imports (``from . import x`` imports module ``x``)."""
+    found = set()
+    for _, module, imported in _import_froms(path, name):
+        full = f"{module}.{imported}" if imported else module
+        found.add(full if full in modules else module)
+    return {m for m in found if m in modules}
+
+
+def _cycles(modules: dict = MODULES) -> list[list[str]]:
+    """The import cycles among the package's modules: strongly connected components of the
+    import graph with more than one module (Tarjan).  Package ``__init__`` modules are left
+    out: they are namespaces that import their modules, and a module that reads a name
+    through its package (``jaxanm.integrate``, or the lazily imported ``jaxanm.fsw``) is not in
+    a cycle with that name's own module."""
+    packages = {m for m, p in modules.items() if p.name == "__init__.py"}
+    graph = {m: sorted(_imported_modules(p, modules, m) - packages - {m}) for m, p in modules.items()
+             if m not in packages}
+    index: dict = {}
+    low: dict = {}
+    stack: list = []
+    cycles = []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return cycles
+
+
+def test_no_import_cycles():
+    """No two modules of the package import each other, directly or through others (imports
+    inside functions and under ``TYPE_CHECKING`` count): the modules form layers, each read
+    and tested without the ones above it."""
+    cycles = _cycles()
+    assert not cycles, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_cycle_finder_finds_a_cycle(tmp_path):
+    """The check above can fail: two modules that import each other (one inside a function, as
+    the cycles it replaced did) are found, and a module that only imports them is not."""
+    texts = {"a": "from . import b\n", "b": "def f():\n    from .a import g\n", "c": "from .a import x\n"}
+    for name, text in texts.items():
+        (tmp_path / f"{name}.py").write_text(text)
+    assert _cycles({f"jaxanm.{n}": tmp_path / f"{n}.py" for n in texts}) == [["jaxanm.a", "jaxanm.b"]]
+
+
+PRIVATE_IMPORTS_TO_MOVE = {
+    ("jaxanm/internal.py", "_relative_change"):
+        "_problem.py is being rewritten (series): rename it relative_change there and import that",
+    ("jaxanm/_solver/newton.py", "_relative_change"):
+        "_solver/ and _problem.py are being rewritten (series): import relative_change once renamed",
+    ("jaxanm/fsw/start.py", "_relative_change"):
+        "fsw/start.py is being rewritten (weld): take relative_change from jaxanm.internal",
+    ("jaxanm/fsw/scene.py", "_check"):
+        "fsw/scene*.py are being rewritten (weld): the scene's value checks become jaxanm._checks calls",
+    ("jaxanm/fsw/scene.py", "_as_str"): "as _check (weld): a public converter of scene_sections",
+    ("jaxanm/fsw/scene.py", "_as_strs"): "as _check (weld): a public converter of scene_sections",
+    ("jaxanm/fsw/scene.py", "_NAME_CHARS"): "as _check (weld): a public constant of scene_sections",
+}
+"""Private names still imported across modules, each in a file another change is rewriting
+(the reason says what replaces the import); emptied once those changes have landed."""
+
+
+def _private_imports() -> dict:
+    """``(file, name) -> line`` of every private name (``_x``, not a module) imported from
+    another module of the package."""
+    found = {}
+    for path in MODULES.values():
+        for line, module, imported in _import_froms(path):
+            if (module.startswith("jaxanm") and imported and imported.startswith("_")
+                    and not imported.startswith("__") and f"{module}.{imported}" not in MODULES):
+                found[(str(path.relative_to(PACKAGE.parent)), imported)] = line
+    return found
+
+
+def test_no_private_name_imported_from_another_module():
+    """A name with a leading underscore is its module's own: another module that needs it
+    gets it made public where it belongs (or, for jaxanm's subpackages, through
+    :mod:`jaxanm.internal`).  The entries of :data:`PRIVATE_IMPORTS_TO_MOVE` are the ones
+    left to move; an entry no longer needed fails too, so the list only shrinks."""
+    found = _private_imports()
+    new = [f"{file}:{line} imports {name}" for (file, name), line in sorted(found.items())
+           if (file, name) not in PRIVATE_IMPORTS_TO_MOVE]
+    stale = [f"{file} {name}" for file, name in PRIVATE_IMPORTS_TO_MOVE if (file, name) not in found]
+    assert not new, "private names imported from another module:\n" + "\n".join(new)
+    assert not stale, "PRIVATE_IMPORTS_TO_MOVE entries no longer needed (remove them):\n" + "\n".join(stale)
+
+
+FACADE_BYPASSES_TO_MOVE = {
+    ("jaxanm.fsw.discretisation", "jaxanm._factorization"): "weld's file: sparse_lu from jaxanm.internal",
+    ("jaxanm.fsw.geometry", "jaxanm._x64"): "weld's file: entry_point from jaxanm.internal",
+    ("jaxanm.fsw.stability", "jaxanm._x64"): "weld's file: entry_point from jaxanm.internal",
+    ("jaxanm.fsw.start", "jaxanm._factorization"): "weld's file: factorize from jaxanm.internal",
+    ("jaxanm.fsw.start", "jaxanm._problem"): "weld's file: Problem, relative_change from jaxanm.internal",
+    ("jaxanm.fsw.start", "jaxanm._x64"): "weld's file: entry_point from jaxanm.internal",
+    ("jaxanm.fsw.scene_sections", "jaxanm._solver"): "weld's file (its solver settings are being "
+                                                     "reworked): make_solver, solver_kinds from jaxanm.internal",
+}
+"""Subpackage modules that still import a private core module directly, each in a file
+another change is rewriting; emptied once those changes have landed."""
+
+
+def _private_core(module: str) -> bool:
+    """``jaxanm._x`` or below it: a private module of the core."""
+    parts = module.split(".")
+    return len(parts) > 1 and parts[0] == "jaxanm" and parts[1].startswith("_") and not parts[1].startswith("__")
+
+
+def test_subpackages_reach_the_core_only_through_public_modules_and_the_facade():
+    """``jaxanm.fsw`` and ``jaxanm.sweep`` import the core's public modules (``jaxanm``,
+    ``jaxanm.errors``, ``jaxanm.mls``, ...) and its internals only through :mod:`jaxanm.internal`,
+    so that what they take from the core's private modules is listed in one place.
+    :data:`FACADE_BYPASSES_TO_MOVE` are the ones left to move (an entry no longer needed fails)."""
+    found = set()
+    for name, path in MODULES.items():
+        if name.startswith(SUBPACKAGES):
+            found |= {(name, m) for m in _imported_modules(path) if _private_core(m)}
+    new = sorted(found - set(FACADE_BYPASSES_TO_MOVE))
+    stale = sorted(set(FACADE_BYPASSES_TO_MOVE) - found)
+    assert not new, "private core modules imported by a subpackage (use jaxanm.internal):\n" + "\n".join(
+        f"{a} imports {b}" for a, b in new)
+    assert not stale, "FACADE_BYPASSES_TO_MOVE entries no longer needed (remove them):\n" + "\n".join(
+        f"{a} {b}" for a, b in stale)
+
+
+def test_the_core_does_not_import_the_facade():
+    """:mod:`jaxanm.internal` points one way, from the subpackages and the command line into
+    the core: no core module imports it (it would import the core back)."""
+    offenders = [name for name, path in MODULES.items()
+                 if not name.startswith(SUBPACKAGES) and name not in (FACADE, "jaxanm.cli", "jaxanm.__main__")
+                 and FACADE in _imported_modules(path)]
+    assert not offenders, "core modules importing jaxanm.internal: " + ", ".join(offenders)
+
+
+# --------------------------------------------------------------------------- one owner per rule
+
+CHECKS = "jaxanm._checks"
+INLINE_CHECKS_TO_MOVE = {
+    "jaxanm/_run_inputs.py": (1, "sparse rewrites it: t0, t1, dt by real()"),
+    "jaxanm/_solver/newton.py": (1, "series rewrites it: ModifiedNewton.max_rate by real()"),
+    "jaxanm/_step_control.py": (2, "schemes rewrites it: the controller's tolerances and bounds by real()"),
+    "jaxanm/fsw/scene_sections.py": (2, "weld rewrites it: the scene converters' real and integer checks"),
+    "jaxanm/ida.py": (5, "schemes rewrites it: t0, rtol, h0, ic_dt, max_steps"),
+}
+"""Files that still check a scalar's type inline, with how many such checks, each in a file
+another change is rewriting; emptied once those changes have landed."""
+
+
+def _checks_a_type(test: ast.expr) -> bool:
+    """Whether an ``if`` test asks ``isinstance(value, int / float / bool / np.integer ...)``."""
+    for node in ast.walk(test):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "isinstance" \
+                and len(node.args) == 2:
+            kinds = ast.unparse(node.args[1])
+            if any(k in kinds.replace("(", " ").replace(")", " ").replace(",", " ").split()
+                   for k in ("int", "float", "bool", "np.integer", "np.floating", "np.bool_")):
+                return True
+    return False
+
+
+def _refuses(node: ast.AST) -> bool:
+    """Whether ``node`` raises, or calls a ``fail`` helper (``_fail(field, value, why)``) that does."""
+    return isinstance(node, ast.Raise) or (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                                           and node.func.id.lstrip("_").startswith("fail"))
+
+
+def _inline_checks_in(source: str) -> int:
+    """The ``if`` statements of ``source`` that test a value's scalar type and refuse it
+    (inline copies of a check :mod:`jaxanm._checks` owns)."""
+    return sum(1 for node in ast.walk(ast.parse(source)) if isinstance(node, ast.If) and _checks_a_type(node.test)
+               and any(_refuses(n) for statement in node.body for n in ast.walk(statement)))
+
+
+def _inline_checks() -> dict:
+    """File -> number of inline scalar checks, outside :mod:`jaxanm._checks` itself."""
+    counts = {str(path.relative_to(PACKAGE.parent)): _inline_checks_in(path.read_text())
+              for name, path in MODULES.items() if name != CHECKS}
+    return {file: n for file, n in counts.items() if n}
+
+
+def test_the_inline_check_finder_finds_one():
+    """The check below can fail: an integer test written inline is found, a string test and a
+    call of the checks module are not."""
+    source = ("def f(n, name):\n"
+              "    if isinstance(n, bool) or not isinstance(n, int):\n        raise ValueError(n)\n"
+              "    if not isinstance(name, str):\n        raise ValueError(name)\n"
+              "    integer('n', n, 1)\n")
+    assert _inline_checks_in(source) == 1
+
+
+def test_scalar_inputs_are_checked_by_the_checks_module():
+    """An option that must be an integer, a number in a range or a flag is checked by
+    :mod:`jaxanm._checks` (through :mod:`jaxanm.internal` in the subpackages), which gives every
+    refusal one shape ("ANM.order must be an integer >= 2, got 1.5"), not by an inline
+    ``isinstance`` test.  :data:`INLINE_CHECKS_TO_MOVE` counts the ones left; a file with
+    fewer than its count fails too, so the list only shrinks."""
+    counts = _inline_checks()
+    allowed = {file: n for file, (n, _) in INLINE_CHECKS_TO_MOVE.items()}
+    more = [f"{file}: {n} inline checks (allowed {allowed.get(file, 0)})" for file, n in sorted(counts.items())
+            if n > allowed.get(file, 0)]
+    fewer = [f"{file}: {counts.get(file, 0)} inline checks, listed with {n}" for file, n in sorted(allowed.items())
+             if counts.get(file, 0) < n]
+    assert not more, "scalar types checked inline (use jaxanm._checks):\n" + "\n".join(more)
+    assert not fewer, "INLINE_CHECKS_TO_MOVE counts to lower:\n" + "\n".join(fewer)

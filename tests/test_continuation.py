@@ -238,6 +238,17 @@ def test_truss_snap_through_matches_the_closed_form():
     assert np.max(np.abs(branch.u[:, 0])) < 1e-12  # the symmetric path
 
 
+def test_truss_without_an_end_condition_ends_well_with_both_limit_points():
+    """No lam_end: past both limit points the truss stiffens (P grows with w without bound)
+    and the branch ends after max_steps, saying so, its two folds events at +-P* (1e-9 P*)."""
+    branch = jaxanm.continuation(truss_residual, np.zeros(2), 0.0, max_steps=120, order=ORDER, tol=TOL,
+                                 scale=TRUSS_SCALE)
+    assert branch.stopped == "max_steps" and "max_steps" in branch.message
+    np.testing.assert_allclose([e.lam for e in branch.events_of("fold")], [P_STAR, -P_STAR], rtol=0,
+                               atol=1e-9 * P_STAR)
+    assert branch.lam[-1] > 2 * P_STAR and branch.events_of("branch_point") == ()
+
+
 def test_truss_limit_points_match_the_closed_form_extrema():
     """The two limit points, roots of d lam / d a on the series: their loads are insensitive
     to first order to where on the branch the root falls, so they match +-P* to round-off of
@@ -267,25 +278,27 @@ def test_anm_and_newton_agree_on_the_branch(record_property):
               f"(steps {newton.a.size}, iterations {newton.stats.newton_iterations})")
 
 
-def test_newton_branch_limit_points_from_its_hermite_interpolant():
-    """Newton's branch interpolates its points and tangents by chord-length cubics in each step:
-    its limit loads are as good as that interpolation over the step that holds them.  The
-    step-length control lets the steps grow to 0.27 (scaled) on the way to the second limit
-    point, where the branch turns by about 70 degrees within one step: 0.6 % off there (0.04 %
-    at the first); we allow 1 %.  The ANM's limit points come from its own series (1e-9 P*,
-    the test above)."""
+def test_newton_branch_limit_points_polished_on_the_augmented_system():
+    """Newton's branch interpolates its points and tangents by chord-length cubics in each step,
+    only 0.04-0.6 % accurate at the folds (the steps grow to 0.27, scaled, and the branch turns
+    by about 70 degrees within one); a fold event is polished from there by Newton on the
+    fold's augmented system: both limit loads to 1e-9 P* (round-off of lam at a stationary
+    point), as the ANM's."""
     folds = truss_branch("newton").limit_points()
-    np.testing.assert_allclose(folds.lam, [P_STAR, -P_STAR], rtol=0, atol=1e-2 * P_STAR)
+    np.testing.assert_allclose(folds.lam, [P_STAR, -P_STAR], rtol=0, atol=1e-9 * P_STAR)
+    assert all(e.data["located"] == "augmented" for e in truss_branch("newton").events_of("fold"))
 
 
-def test_a_failing_step_raises_step_failure_not_nan():
-    """A residual that is NaN at the start: StepFailure naming step, lam and the residual."""
-    with pytest.raises(jaxanm.StepFailure, match=r"step 0 \(lam = -1\).*not finite"):
+def test_a_start_outside_the_residual_s_domain_is_bad_input_not_nan():
+    """A residual that is NaN at the start: an InputError naming the start and why."""
+    with pytest.raises(jaxanm.InputError, match=r"u0 is not a usable starting point at lam0 = -1.*not finite"):
         jaxanm.continuation(lambda u, lam, p: u - jnp.sqrt(lam), np.zeros(1), -1.0, order=ORDER)
 
 
 def test_factorize_hook_is_used_for_every_factorisation():
-    """The ``factorize`` hook gets every bordered matrix (the door for reusing factors)."""
+    """The ``factorize`` hook gets every bordered matrix (the door for reusing factors): one
+    per point of the branch (three steps, four points), each point's factors serving the
+    series of the step from it and the events found at it."""
     seen = []
 
     def hook(matrix, stats):
@@ -295,7 +308,7 @@ def test_factorize_hook_is_used_for_every_factorisation():
     n = 19
     branch = jaxanm.continuation(bratu(n), np.zeros(n), 0.0, max_steps=3, order=ORDER, tol=TOL,
                                  scale=bratu_scale(n), factorize=hook)
-    assert seen == [(n + 1, n + 1)] * 3 == [(n + 1, n + 1)] * branch.stats.factorizations
+    assert seen == [(n + 1, n + 1)] * 4 == [(n + 1, n + 1)] * branch.stats.factorizations
 
 
 BAD_INPUTS = [

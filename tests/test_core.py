@@ -305,8 +305,12 @@ def test_bad_solver_options_are_rejected():
 
 
 def test_bad_saveat_is_rejected():
-    with pytest.raises(jaxanm.InputError, match="steps"):
+    with pytest.raises(jaxanm.InputError, match=r"SaveAt.steps must be an integer >= 1, got 0"):
         jaxanm.SaveAt(steps=0)
+    with pytest.raises(jaxanm.InputError, match=r"SaveAt.steps must be an integer >= 1, got True"):
+        jaxanm.SaveAt(steps=True)  # a bool is no step count
+    with pytest.raises(jaxanm.InputError, match=r"SaveAt.params must be True or False, got 'yes'"):
+        jaxanm.SaveAt(params="yes")
     with pytest.raises(jaxanm.InputError, match="not both"):
         jaxanm.SaveAt(ts=[0.1], steps=2)
 

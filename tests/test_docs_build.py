@@ -23,7 +23,7 @@ pytest.importorskip("mkdocstrings", reason="mkdocstrings is not installed: pip i
 ROOT = Path(__file__).resolve().parents[1]
 PUBLIC = ["integrate", "ANM", "Newton", "ModifiedNewton", "StepController", "SaveAt",
           "taylor_coefficients", "jaxanm.fsw.run", "load_scene", "Scene", "FSWResult",
-          "newton_continuation", "Branch"]
+          "newton_continuation", "Branch", "jaxanm.mls.build_stencils", "NeighbourList"]
 
 
 @pytest.fixture(scope="module")

@@ -67,6 +67,18 @@ def test_newtonian_couette_power_closed_form():
     assert math.isclose(np.trapezoid(q, r), _couette_power_newtonian(scene), rel_tol=1e-6)
 
 
+def test_annulus_quadrature_integrates_the_couette_dissipation_to_round_off():
+    """The default rule on the tool-to-ring annulus against the closed form of
+    :func:`_couette_power_newtonian` (the density mu (2 b / r^2)^2, steepest at R1)."""
+    scene = Scene(effects=("viscous",), material=Material(n=1.0))
+    g, mu = scene.geometry, scene.material.K * scene.thermal.T0 ** scene.material.A / 3.0
+    b = scene.tool.omega * g.R1 ** 2 * g.R2 ** 2 / (g.R2 ** 2 - g.R1 ** 2)
+    pts, w = annulus_quadrature(g.R1, g.R2)
+    r = np.hypot(pts[:, 0], pts[:, 1])
+    # 1e-10: 60 three-point Gauss cells integrate this r^-3 density to 3e-12 (measured), well inside it
+    assert math.isclose(np.sum(w * mu * (2 * b / r ** 2) ** 2), _couette_power_newtonian(scene), rel_tol=1e-10)
+
+
 def test_half_cell_edge_rows_keep_the_dissipated_heat():
     """With the edge half-cell balance the plate stores beta P t (the continuum balance).
 

@@ -1,4 +1,4 @@
-"""Issue 15's Couette target on a graded cloud: the isothermal power-law Couette flow at the
+"""The Couette target on a graded cloud: the isothermal power-law Couette flow at the
 paper's n = 0.1324 within 1e-2 omega R1 of the axisymmetric oracle (:mod:`jaxanm.fsw.axisymmetric`).
 
 docs/notes/spatial_accuracy.md ("Aligned spokes against the Couette error") has the
@@ -42,10 +42,10 @@ def _couette_errors(overrides: dict) -> tuple[float, float, float]:
 def test_couette_target_met_on_a_fine_graded_cloud():
     # dr = 0.05 mm across a 0.3 mm band, then grading 1.15 (4091 points, 20-40 s): measured
     # 7.6e-3 on the first plate ring (spread 7.4e-3 around it, mean 3.9e-3) and a power error
-    # of -7e-4.  The bound is the issue's target.  Its margin, 1e-2 / 7.6e-3 = 1.3, is what
-    # first order in the band's spacing gives from 0.05 to 0.065 mm (measured: 9.4e-3 at
-    # 0.06 mm, 1.24 times 0.05 mm's), and the result is deterministic to the solvers'
-    # tolerance (1e-6 of the state).  The power is held to 5e-3: the shipped
+    # of -7e-4.  The bound is the target (a velocity error of 1 % of the tool's edge speed).
+    # Its margin, 1e-2 / 7.6e-3 = 1.3, is what first order in the band's spacing gives from
+    # 0.05 to 0.065 mm (measured: 9.4e-3 at 0.06 mm, 1.24 times 0.05 mm's), and the result is
+    # deterministic to the solvers' tolerance (1e-6 of the state).  The power is held to 5e-3: the shipped
     # graded clouds reach 3-5e-3 (note), a finer band must not do worse.
     error, where, power = _couette_errors({"geometry.dr": "5e-5", "geometry.band": "3e-4",
                                            "geometry.grading": "1.15"})

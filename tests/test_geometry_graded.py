@@ -1,4 +1,4 @@
-"""The graded point layout (``geometry.layout = "graded"``, issue 15): its rings, its per-point
+"""The graded point layout (``geometry.layout = "graded"``): its rings, its per-point
 MLS influence radius and its scene checks.  Cheap (no time stepping); what the layout buys in
 accuracy is measured in docs/notes/spatial_accuracy.md."""
 
@@ -48,7 +48,7 @@ def test_rings_follow_the_grading(graded):
     tool = np.unique(np.round(r[cloud.kind == TOOL], 12))
     assert tool[0] == 0.0 and tool[-1] < g.R1
     assert g.R1 - tool[-1] == pytest.approx(g.dr * g.grading, rel=0.1)
-    # the point budget of issue 15: at most twice the paper's cloud
+    # the graded cloud's point budget: at most twice the paper's cloud
     assert cloud.size <= 2 * PAPER_POINTS, cloud.size
 
 

@@ -1,7 +1,8 @@
-"""Hard cases stay numerically stable (issue 6): a finite, checked solution or a named error.
+"""Hard cases stay numerically stable: a finite, checked solution or a named error.
 
-The cases live in ``benchmarks/hard_cases.py`` (which also writes the table of
-benchmarks/results/hard_cases.md); here the fast ones run and their outcomes are asserted:
+The cases live in ``tests/hard_problems.py`` (``benchmarks/hard_cases.py`` runs them all and
+writes the table of benchmarks/results/hard_cases.md); here the fast ones run and their
+outcomes are asserted:
 
 - converged cases pass the independent check of that module: the Newton distance
   ``|J(x)^-1 R(x)|`` of the accepted state, by a dense ``jax.jacfwd`` Jacobian, is within ten
@@ -16,18 +17,13 @@ locates it, for ANM, Newton and modified Newton.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
+import hard_problems as hc
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxanm
 from jaxanm.fsw.scene import SceneError, SolverSpec
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import hard_cases as hc  # noqa: E402
 
 
 def _run(key):

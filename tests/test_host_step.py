@@ -1,4 +1,6 @@
-"""The Lagrangian host step's shortcuts give what the direct computations give (issue 14, item 1)."""
+"""The Lagrangian host step's shortcuts (candidate neighbour lists, the kernel's condition
+bound, the refit on an earlier factorisation, values on the host) give what the direct
+computations give."""
 
 from __future__ import annotations
 
@@ -13,6 +15,9 @@ from jaxanm.fsw import discretise, load_scene
 from jaxanm.fsw.discretisation import Refit
 from jaxanm.fsw.geometry import PLATE, _apart, cloud_stencils, neighbour_list
 from jaxanm.fsw.lagrangian import RunRecorder, _rotate
+from jaxanm.mls._condition import condition_screen, equilibrated_moments, reciprocal_condition
+from jaxanm.mls._kernel import run_kernel
+from jaxanm.mls._shape import RCOND_MIN
 
 
 def _scene():
@@ -143,17 +148,17 @@ def test_condition_screen_is_a_lower_bound_exact_where_it_decides():
     mask = np.ones(x.shape, dtype=bool)
     mask[:, 12:] = False  # padding
     with jaxanm.float64():  # as mls's entry points run it
-        out = mls._run_kernel(x, y, mask, np.ones(50), 0.3, 1)
+        out = run_kernel(x, y, mask, np.ones(50), 0.3, 1)
     bound, finite = out[6], out[7]
-    exact = mls._reciprocal_condition(mls._equilibrated_moments(x, y, mask, 0.3, 1))
+    exact = reciprocal_condition(equilibrated_moments(x, y, mask, 0.3, 1))
     assert finite.all()
     assert np.all(bound <= exact * (1 + 1e-12))
-    screen = mls._condition_screen(bound, x, y, mask, 0.3, 1)
-    low = ~(bound >= 1e3 * mls.RCOND_MIN)
+    screen = condition_screen(bound, x, y, mask, 0.3, 1)
+    low = ~(bound >= 1e3 * RCOND_MIN)
     assert low[:5].all() and (~low).sum() > 25  # both ways exercised
     np.testing.assert_array_equal(screen[low], exact[low])
     np.testing.assert_array_equal(screen[~low], bound[~low])
-    assert np.array_equal(screen >= mls.RCOND_MIN, exact >= mls.RCOND_MIN)
+    assert np.array_equal(screen >= RCOND_MIN, exact >= RCOND_MIN)
 
 
 def test_value_only_stencils_give_the_values_of_the_full_ones():

@@ -20,6 +20,7 @@ import pytest
 from jax.experimental import jet
 
 from jaxanm import mls
+from jaxanm.mls._kernel import kernel, run_kernel
 
 R = 6e-3  # plate radius R2 of the paper (m)
 DR = 3.75e-4  # point spacing dr of the paper (m)
@@ -140,8 +141,8 @@ def reciprocal_condition(points, st, c=0.2):
 # most about 3 n eps / rcond relative (n = 6 basis functions: 18 eps / rcond), and the second
 # derivative weights come from differentiating that solve twice, each derivative solve adding
 # an error of the same size: 2 x 18 = 36 eps / rcond, relative to sum |w| (the terms summed).
-# Edge points with one-sided supports have rcond down to 1e-6 (mls.RCOND_MIN's note), where a
-# fixed bound of 1e-10 failed on a CPU without AVX-512 (issue 13: 2.8e-2 against 2.3e-2).
+# Edge points with one-sided supports have rcond down to 1e-6 (RCOND_MIN's note in jaxanm/mls/_shape.py), where a
+# fixed bound of 1e-10 failed on a CPU without AVX-512 (an error of 2.8e-2 against a bound of 2.3e-2).
 # The closed-form kernel solves through a QR factorisation of sqrt(W) P instead, whose
 # condition number is rcond^(-1/2): the same constant over sqrt(rcond) bounds its error
 # (QR_ERROR, test_closed_form_against_50_digits); SOLVE_ERROR still bounds the reference
@@ -390,7 +391,7 @@ def test_condition_bound_is_a_lower_bound(clouds):
         local, real = kernel_inputs(points, st)
         x, y = local[..., 0], local[..., 1]
         inside = real & (x * x + y * y <= 1.0)
-        *_, bound, finite = mls._run_kernel(x, y, inside, np.full(len(points), H), 0.2, 1)
+        *_, bound, finite = run_kernel(x, y, inside, np.full(len(points), H), 0.2, 1)
         assert finite.all()
         assert np.all(bound <= reciprocal_condition(points, st) * (1 + 1e-8))
 
@@ -488,14 +489,14 @@ def test_helpers_match_direct_sums_and_trace(clouds):
 
 def test_moved_cloud_does_not_retrace(clouds):
     points, st = clouds["regular"]
-    before = mls._kernel._cache_size()
+    before = kernel._cache_size()
     for seed in range(3):
         moved = jitter(points, DR, 0.1, seed=10 + seed)
         st2 = mls.build_stencils(moved, H, m_max=st.index.shape[1])
         assert st2.index.shape == st.index.shape
     # Different nodes (count and positions) at the same number of targets: no retrace either.
     mls.evaluate_at(disc_grid(DR / 2), H / 2, points, m_max=M)
-    assert mls._kernel._cache_size() == before
+    assert kernel._cache_size() == before
 
 
 def line(offset=0.0):
@@ -522,8 +523,8 @@ def line(offset=0.0):
         (disc_grid(radius=2e-3), DR / 2, {},
          r"point 0 .* has 1 node\(s\) within h.*at least 6.*increase h"),
         (disc_grid(radius=2e-3), H, {"m_max": 4}, r"m_max must be an integer >= 6"),
-        (disc_grid(radius=2e-3), H, {"q": 1.5}, r"q must be a positive integer"),
-        (disc_grid(radius=2e-3), H, {"c": -1.0}, r"c must be finite and > 0"),
+        (disc_grid(radius=2e-3), H, {"q": 1.5}, r"q must be an integer >= 1, got 1.5; the weight"),
+        (disc_grid(radius=2e-3), H, {"c": -1.0}, r"c must be a number > 0, got -1.0; the paper uses c = 0.2"),
         (np.r_[disc_grid(radius=2e-3), [[0.0, 0.0]]], H, {}, r"points \d+ and \d+ coincide"),
         (line(), 2 * H, {"m_max": M},
          r"point 0 .* singular or ill-conditioned.*7 nodes within.*increase h"),

@@ -60,3 +60,5 @@ def test_irregular_samples_give_no_frequency_and_short_windows_are_refused():
         oscillation(T, TREND, window=(0.0, 2 * DT))
     with pytest.raises(ValueError, match="1-D arrays"):
         oscillation(T, TREND[:-1])
+    with pytest.raises(ValueError, match=r"degree must be an integer >= 0, got 2.5"):
+        oscillation(T, TREND, degree=2.5)

@@ -115,7 +115,7 @@ def recorded_sections(t, isothermal=False, samples=161):
     return out
 
 
-ALL_FIGURES = [name for name, _ in figures.paper_figures(fake_result())]
+ALL_FIGURES = [name for name, _ in output.figure_builders(fake_result())]
 
 
 def leftovers(directory: Path) -> list[Path]:
@@ -228,7 +228,7 @@ def test_isothermal_skips_temperature_figures(caplog):
     assert not figures.has_temperature(res) and figures.has_temperature(fake_result())
     built, skipped = [], {}
     with caplog.at_level(logging.INFO, logger="jaxanm.fsw"):
-        for name, build in figures.paper_figures(res):
+        for name, build in output.figure_builders(res):
             try:
                 fig = build()
             except figures.FigureSkipped as e:

@@ -139,13 +139,13 @@ def test_make_solver_refuses_an_unknown_kind_or_option_naming_what_it_knows():
 
 @pytest.mark.parametrize("kind, options, message", [
     ("anm", {"order": 1}, "ANM.order must be an integer >= 2"),
-    ("anm", {"tol": 0.0}, r"ANM.tol must be a float in \(0, 1\)"),
+    ("anm", {"tol": 0.0}, r"ANM.tol must be a number in \(0, 1\)"),
     ("anm", {"max_substeps": -1}, "ANM.max_substeps must be an integer >= 0"),
     ("anm", {"criterion": "size"}, "ANM.criterion must be 'increment'"),
     ("anm", {"homotopy": "arc"}, "ANM.homotopy must be 'convex'"),
     ("anm", {"adaptive": "yes"}, "ANM.adaptive must be True or False"),
     ("newton", {"max_iter": 0}, "Newton.max_iter must be an integer >= 1"),
-    ("newton", {"tol": 1.5}, r"Newton.tol must be a float in \(0, 1\)"),
+    ("newton", {"tol": 1.5}, r"Newton.tol must be a number in \(0, 1\)"),
     ("mnewton", {"max_rate": 1.0}, r"ModifiedNewton.max_rate must be a float in \(0, 1\)"),
     ("mnewton", {"max_rate": "0.5"}, r"ModifiedNewton.max_rate must be a float in \(0, 1\)"),
     ("mnewton", {"max_iter": 2.5}, "ModifiedNewton.max_iter must be an integer >= 1"),

@@ -128,7 +128,7 @@ def test_solver_keys_cover_the_scene_solver_fields():
     ({"solvers": [{"kind": "newton", "tol": 1e-6}, {"kind": "newton", "tol": [1e-6, 1e-8]}]},
      "tasks 'tol=1e-06' and 'tol=1e-06' are the same run; list each value once"),
     ({"solvers": {"kind": "anm", "tol": [1e-6, 2.0]}},
-     "task 'tol=2.0': scene field 'solver.tol' = 2.0 is invalid: ANM.tol must be a float in (0, 1)"),
+     "task 'tol=2.0': scene field 'solver.tol' = 2.0 is invalid: ANM.tol must be a number in (0, 1)"),
     ({"reference": "newton", "solvers": {"tol": [1e-6, 1e-8]}},
      "reference = 'newton' is not a task of this grid; its tasks are 'tol=1e-06', 'tol=1e-08'"),
     ({"solver": {"tol": 1e-6}},
@@ -179,17 +179,18 @@ RICHARDSON = {"richardson": {"dt": 0.025, "kind": "mnewton", "tol": 1e-10}}
 
 @pytest.mark.parametrize("data, expected", [
     ({"scene": "fsw_small", "solvers": {"kind": "ida"}}, "IDA needs fixed points and scene 'fsw_small' is Lagrangian"),
-    ({"scene": "conduction_small", "solvers": {"kind": "ida", "rtol": 2.0}}, "rtol = 2.0 must be a number in (0, 1)"),
-    ({"scene": "conduction_small", "solvers": {"kind": "ida", "atol": -1.0}}, "atol = -1.0 must be a number >= 0"),
+    ({"scene": "conduction_small", "solvers": {"kind": "ida", "rtol": 2.0}},
+     "rtol must be a number in (0, 1), got 2.0"),
+    ({"scene": "conduction_small", "solvers": {"kind": "ida", "atol": -1.0}}, "atol must be a number >= 0, got -1.0"),
     ({"scene": "conduction_small", "solvers": {"kind": "ida", "max_order": 6}},
-     "max_order = 6 must be an integer from 1"),
+     "max_order must be an integer from 1 to 5, got 6"),
     ({"scene": "conduction_small", "solvers": {"kind": "ida", "tol": 1e-6}},
      "'tol': it does not apply to kind = 'ida'; kind 'ida' takes rtol, atol, max_order"),
     ({"overrides": {"time.dt": 0.5}, "solvers": {"kind": "newton", "time.dt": [1.0]}},
      "'time.dt' is both in [overrides] and in a [[solvers]] entry"),
     ({"solvers": {"kind": "newton", "time.dtt": [1.0]}}, "[solvers]: unknown scene key 'time.dtt'"),
     ({"scene": "conduction_small", "reference": {"richardson": {"dt": -1.0, "kind": "mnewton"}}},
-     "[reference.richardson]: dt = -1.0 must be a positive number"),
+     "[reference.richardson]: dt must be a number > 0, got -1.0"),
     ({"scene": "conduction_small", "overrides": {"time.t_end": [0.2, 0.3]}, "reference": RICHARDSON},
      "the reference runs the grid's [overrides], which must then be single values"),
     ({"scene": "conduction_small", "reference": {"richardson": {"dt": 0.025, "kind": "ida"}}},
@@ -197,7 +198,7 @@ RICHARDSON = {"richardson": {"dt": 0.025, "kind": "mnewton", "tol": 1e-10}}
     ({"scene": "conduction_small", "reference": {"richardson": {"dt": 0.03, "kind": "mnewton"}}},
      "save time 0.1 s is no multiple of dt = 0.03"),
     ({"scene": "conduction_small", "reference": {"dt": 0.03}}, "reference must be a task id"),
-    ({"warmup": "yes"}, "warmup = 'yes' must be true or false"),
+    ({"warmup": "yes"}, "warmup must be True or False, got 'yes'"),
 ])
 def test_bad_ida_richardson_and_entry_overrides_are_named(data, expected):
     assert expected in grid_error(data)
@@ -430,6 +431,8 @@ def test_unusable_reference_and_unreachable_scheduler_are_input_errors(tmp_path)
     import dask
 
     g = grid({})
+    with pytest.raises(InputError, match="workers must be an integer >= 1, got True"):
+        run_sweep(g, tmp_path / "w", workers=True, progress=False)  # a bool is no process count
     with pytest.raises(InputError, match="not the output directory of a finished `jaxanm run`"):
         run_sweep(g, tmp_path / "a", reference=tmp_path, progress=False)
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):  # refused at once on loopback

@@ -21,6 +21,7 @@ from .._acceptance import (
     reference_state,
     validity_range,
 )
+from .._checks import integer, real
 from .._problem import SeriesPath
 from ..errors import InputError, NonFiniteError, StepFailure
 from .base import Attempt, AttemptSolver, check_count, check_flag, check_tol
@@ -340,10 +341,9 @@ class ANM(AttemptSolver):
         return cls(**{"adaptive": False, "homotopy": "convex", "criterion": "increment", "max_rate": 0.0, **options})
 
     def __post_init__(self):
-        if not (isinstance(self.order, (int, np.integer)) and not isinstance(self.order, bool) and self.order >= 2):
-            raise InputError(f"ANM.order must be an integer >= 2, got {self.order!r}: the validity range a_max "
-                             "of eq. 26 compares c_1 with c_p and takes the 1/(p-1)-th root, undefined for p = 1 "
-                             "(an order-1 series is one linearised step: use jaxanm.ModifiedNewton for that)")
+        integer("ANM.order", self.order, 2, hint="the validity range a_max of eq. 26 compares c_1 with c_p and "
+                "takes the 1/(p-1)-th root, undefined for p = 1 (an order-1 series is one linearised step: use "
+                "jaxanm.ModifiedNewton for that)")
         check_tol("ANM", self.tol)
         check_count("ANM", "max_substeps", self.max_substeps, 0)
         check_flag("ANM", "adaptive", self.adaptive)
@@ -356,7 +356,5 @@ class ANM(AttemptSolver):
                              "point (use order >= 3, or pade=False)")
         if self.criterion not in CRITERIA:
             raise InputError(f"ANM.criterion must be 'increment' (eq. 26) or 'state', got {self.criterion!r}")
-        rate = self.max_rate
-        if not (isinstance(rate, (int, float, np.floating)) and not isinstance(rate, bool) and 0 <= rate < 1):
-            raise InputError(f"ANM.max_rate must be a float in [0, 1), got {rate!r}; e.g. max_rate=0.5 (0: a stale "
-                             "K* is refactorised whenever its series falls short)")
+        real("ANM.max_rate", self.max_rate, 0, 1, open_high=True,
+             hint="e.g. max_rate=0.5 (0: a stale K* is refactorised whenever its series falls short)")

@@ -11,6 +11,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from .._checks import flag, integer, real
 from .._factorization import Factorization
 from .._problem import Problem
 from ..errors import InputError, StepFailure
@@ -230,19 +231,15 @@ class AttemptSolver(StepSolver):
 
 def check_tol(solver: str, tol) -> None:
     """``<solver>.tol`` is a float in (0, 1), else :class:`~jaxanm.InputError`."""
-    if not (isinstance(tol, (int, float, np.floating)) and not isinstance(tol, bool) and np.isfinite(tol)
-            and 0 < tol < 1):
-        raise InputError(f"{solver}.tol must be a float in (0, 1), got {tol!r}; e.g. tol=1e-6")
+    real(f"{solver}.tol", tol, 0.0, 1.0, open_low=True, open_high=True, hint="e.g. tol=1e-6")
 
 
 def check_count(solver: str, field: str, value, minimum: int) -> None:
     """``<solver>.<field>`` is an integer >= ``minimum``, else :class:`~jaxanm.InputError`."""
-    if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= minimum):
-        raise InputError(f"{solver}.{field} must be an integer >= {minimum}, got {value!r}")
+    integer(f"{solver}.{field}", value, minimum)
 
 
 def check_flag(solver: str, field: str, value) -> None:
     """``<solver>.<field>`` is True or False, else :class:`~jaxanm.InputError`."""
-    if not isinstance(value, (bool, np.bool_)):
-        raise InputError(f"{solver}.{field} must be True or False, got {value!r}")
+    flag(f"{solver}.{field}", value)
 

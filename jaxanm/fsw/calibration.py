@@ -41,8 +41,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import sensitivity
-from .._x64 import entry_point
 from ..errors import InputError, StepFailure
+from ..internal import entry_point, positive, real
 from .discretisation import discretise
 from .geometry import evaluate_stencils
 from .physics import complete_fields
@@ -90,7 +90,15 @@ def _observer(fields: tuple):
     return observe
 
 
+_THETA_RANGES = {"n": (0.0, 2.0, True, "the power-law index"),
+                 "A": (-20.0, 20.0, False, "the range jaxanm.fsw.Material accepts"),
+                 "delta": (0.0, 1.0, False, "the contact state"),
+                 "K": (0.0, None, True, "or calibrate logK")}
+"""Allowed range of each calibrated parameter that has one: ``(low, high, low open, why)``."""
+
+
 def _check_theta(theta) -> dict:
+    """``theta`` as float64 scalars, each a known parameter within its range (:class:`InputError`)."""
     if not isinstance(theta, dict) or not theta:
         raise InputError(f"theta must be a non-empty dict such as {{'logK': 37.83, 'A': -3.3155, 'n': 0.1324}}, "
                          f"got {theta!r}")
@@ -106,14 +114,9 @@ def _check_theta(theta) -> dict:
         if arr.ndim != 0 or not np.issubdtype(arr.dtype, np.number) or not np.isfinite(arr):
             raise InputError(f"theta[{k!r}] must be a finite real scalar, got {v!r}")
         out[k] = np.float64(arr)
-    if "n" in out and not 0 < out["n"] <= 2:
-        raise InputError(f"theta['n'] = {out['n']} is outside (0, 2] (power-law index)")
-    if "A" in out and not -20.0 <= out["A"] <= 20.0:
-        raise InputError(f"theta['A'] = {out['A']} is outside [-20, 20] (the range jaxanm.fsw.Material accepts)")
-    if "delta" in out and not 0 <= out["delta"] <= 1:
-        raise InputError(f"theta['delta'] = {out['delta']} is outside [0, 1] (the contact state)")
-    if "K" in out and not out["K"] > 0:
-        raise InputError(f"theta['K'] = {out['K']} must be > 0 (or calibrate logK)")
+    for k, (low, high, open_low, hint) in _THETA_RANGES.items():
+        if k in out:
+            real(f"theta[{k!r}]", float(out[k]), low, high, open_low=open_low, hint=hint)
     return out
 
 
@@ -148,10 +151,11 @@ def _setup(scene: Scene):
     """Model, params (with the observation stencils under ``"obs"``), initial state."""
     g = scene.geometry
     cloud, _, model, params, x0 = discretise(scene)
-    obs = {"probes": {}, "sections": {}}
+    obs: dict[str, dict] = {"probes": {}, "sections": {}}
     sites = ProbeSites.of(scene, cloud)  # at the probe positions, as in a run
-    for j, name in enumerate(sites.names):
-        obs["probes"][name] = {"index": sites.stencils.index[j:j + 1], "phi": sites.stencils.phi[j:j + 1]}
+    if sites.stencils is not None:  # None without probes
+        for j, name in enumerate(sites.names):
+            obs["probes"][name] = {"index": sites.stencils.index[j:j + 1], "phi": sites.stencils.phi[j:j + 1]}
     for s in scene.sections:
         st = evaluate_stencils(cloud.points, cloud.n_tool, g, np.linspace(s.start, s.end, s.samples))
         obs["sections"][s.name] = {"index": np.asarray(st.index), "phi": np.asarray(st.phi)}
@@ -326,9 +330,10 @@ def _check_fit_inputs(scenes, data, start: dict, sigma: dict):
     scenes, data = list(scenes), list(data)
     if len(scenes) != len(data) or not scenes:
         raise InputError(f"give one data set per scene: {len(scenes)} scenes, {len(data)} data sets")
-    if not (isinstance(sigma, dict) and sigma and all(k in ("u", "v", "T") for k in sigma)
-            and all(float(v) > 0 for v in sigma.values())):
+    if not (isinstance(sigma, dict) and sigma and all(k in ("u", "v", "T") for k in sigma)):
         raise InputError(f"sigma must map some of 'u', 'v', 'T' to positive noise levels, got {sigma!r}")
+    for k, v in sigma.items():
+        positive(f"sigma[{k!r}]", v, hint="the noise level of the measured field")
     theta = _check_theta(start)
     for s in scenes:
         _check_scene(s)

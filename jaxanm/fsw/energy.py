@@ -33,8 +33,8 @@ def annulus_quadrature(r_in: float, r_out: float, cells: int = 60, angles: int =
 
     Three Gauss points per radial cell, cells clustered quadratically towards ``r_in`` (where
     the FSW source concentrates), ``angles`` equally spaced angles.  ``r_in = 0`` gives a disc.
-    The defaults integrate the exact Newtonian Couette power, refitted from the paper's points,
-    to 3e-5 (300 cells and 128 angles: 6e-5, at 14 times the cost).
+    The defaults integrate the Newtonian Couette flow's dissipation, a smooth density steepest
+    at ``r_in``, to round-off (tests/test_fsw_energy.py).
     """
     edges = r_in + (r_out - r_in) * np.linspace(0.0, 1.0, cells + 1) ** 2
     xg, wg = np.polynomial.legendre.leggauss(3)

@@ -24,6 +24,8 @@ same files as ``jaxanm run --out`` and errors are measured by the same
 
 from __future__ import annotations
 
+from typing import Any, TypedDict
+
 import numpy as np
 
 import jaxanm
@@ -35,7 +37,14 @@ from .scene import Scene
 
 __all__ = ["IDA_DEFAULTS", "run_ida"]
 
-IDA_DEFAULTS = {"rtol": 1e-6, "max_order": 5}
+class IDASettings(TypedDict):
+    """The settings of an IDA run that have defaults (:data:`IDA_DEFAULTS`)."""
+
+    rtol: float
+    max_order: int
+
+
+IDA_DEFAULTS: IDASettings = {"rtol": 1e-6, "max_order": 5}
 """IDA settings of a run (:func:`jaxanm.ida.integrate_ida`); ``atol`` (relative to each unknown's
 scale: omega R1 for u, v, T0 for T, as ``rtol`` is to its value) defaults to ``rtol``."""
 
@@ -67,14 +76,14 @@ def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None
     full = model.full_values(vals)
     u, v, T = full["u"], full["v"], full["T"]
     t_saved = np.concatenate([[0.0], sol.ts])
-    probes = {"t": t_saved}
+    probes: dict[str, Any] = {"t": t_saved}
     sites = ProbeSites.of(scene, cloud)
     at = [sites.at_rest(model)] + [sites.values(model, x) for x in sol.xs]  # from rest, as a run
     for j, name in enumerate(sites.names):
         probes[name] = {"x": np.full(t_saved.size, sites.positions[j, 0]),
                         "y": np.full(t_saved.size, sites.positions[j, 1]),
                         **{k: np.array([a[k][j] for a in at]) for k in "uvT"}}
-    sections = {"t": t_saved}
+    sections: dict[str, Any] = {"t": t_saved}
     xs = [x0, *sol.xs]
     for sec in scene.sections:
         targets = np.linspace(sec.start, sec.end, sec.samples)

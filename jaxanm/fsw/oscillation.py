@@ -17,6 +17,7 @@ import dataclasses
 import numpy as np
 
 from ..errors import InputError
+from ..internal import integer
 
 __all__ = ["Oscillation", "oscillation"]
 
@@ -77,6 +78,7 @@ def oscillation(times, values, window=(0.05, 0.3), degree: int = 3) -> Oscillati
     if t.shape != y.shape or t.ndim != 1:
         raise InputError(f"times and values must be 1-D arrays of one length, got {t.shape} and {y.shape}: "
                          "pass one history, e.g. probes.csv's t and one probe's speed")
+    integer("degree", degree, 0, hint="the degree of the least-squares trend")
     t0, t1 = window
     inside = (t >= t0) & (t <= t1)
     if inside.sum() <= degree + 1:

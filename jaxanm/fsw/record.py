@@ -18,6 +18,7 @@ sheared cloud instead).
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -169,22 +170,20 @@ class Recorder:
         self.probe_sites = None if model.effects.lagrangian else ProbeSites.of(scene, cloud)
         self.probe_index = probe_points(scene, cloud) if model.effects.lagrangian else {}
         self.section_points = {s.name: np.linspace(s.start, s.end, s.samples) for s in scene.sections}
-        self.probes = {"t": [], **{p.name: {k: [] for k in "xyuvT"} for p in scene.probes}}
-        self.saved = {"t": [], "points": [], "nodes": [], "u": [], "v": [], "T": []}
-        self.sections = {"t": [], **{name: {k: [] for k in "uvT"} for name in self.section_points}}
+        # "t" -> the times; a probe's (section's) name -> its fields' histories
+        self.probes: dict[str, Any] = {"t": [], **{p.name: {k: [] for k in "xyuvT"} for p in scene.probes}}
+        self.saved: dict[str, list] = {"t": [], "points": [], "nodes": [], "u": [], "v": [], "T": []}
+        self.sections: dict[str, Any] = {"t": [], **{name: {k: [] for k in "uvT"} for name in self.section_points}}
         self.tracers = cloud.points.copy() if model.effects.tracers else None
-        self.tracer_saves = []
-        self.rezone_times = []
+        self.tracer_saves: list[np.ndarray] = []
+        self.rezone_times: list[float] = []
         self.start = start
         self._save_sections(x0)
         # from rest, the fields at t = 0 are the rest state (not the MLS values of its nodal
         # parameters, which are not interpolating); after a quasi-static start those of x0
-        from_rest = initial is None
-        if from_rest:
-            initial = model.initial_values(self.points)
-        full = model.full_values(initial)
+        full = model.full_values(model.initial_values(self.points) if initial is None else initial)
         self._record(0.0, self.points, full, save=True,
-                     probes=self._at_probes(self.points, full, None if from_rest else x0))
+                     probes=self._at_probes(self.points, full, None if initial is None else x0))
 
     def to_checkpoint(self) -> dict:
         """The run state of the recorder, ``{"version": CHECKPOINT_VERSION, name: value}`` for
@@ -261,10 +260,10 @@ class Recorder:
 
     def result(self, solver, stats, time_error=None) -> FSWResult:
         """Assemble the :class:`FSWResult` (``time_error``: the controller's estimate, if any)."""
-        probes = {"t": np.asarray(self.probes["t"])}
+        probes: dict[str, Any] = {"t": np.asarray(self.probes["t"])}
         for name in (p.name for p in self.scene.probes):
             probes[name] = {k: np.asarray(v) for k, v in self.probes[name].items()}
-        sections = {"t": np.asarray(self.sections["t"])}
+        sections: dict[str, Any] = {"t": np.asarray(self.sections["t"])}
         for name, targets in self.section_points.items():
             s = np.hypot(*(targets - targets[0]).T)
             sections[name] = {"x": targets[:, 0], "y": targets[:, 1], "s": s,

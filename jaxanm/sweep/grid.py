@@ -63,12 +63,13 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import math
 import re
 import tomllib
 from pathlib import Path
 
+from jaxanm.errors import InputError
 from jaxanm.fsw.scene import SOLVER_NAMES, SOLVER_OPTIONS, Scene, SceneError, load_scene, override_keys
+from jaxanm.internal import flag, integer, positive, real
 
 __all__ = ["IDA", "RICHARDSON", "SOLVER_KEYS", "Grid", "GridError", "Richardson", "Task", "grid_from_dict",
            "read_grid"]
@@ -85,7 +86,7 @@ TOP_KEYS = ("scene", "reference", "warmup", "overrides", "solvers")
 """Keys a grid file may have at its top level."""
 
 
-class GridError(ValueError):
+class GridError(InputError):
     """A bad grid file; the message names the file, the entry or task, and what to change."""
 
 
@@ -156,7 +157,8 @@ def grid_from_dict(data: dict, name: str = "grid", base_dir=".", source: str = "
     keys = tuple(dict.fromkeys(k for p in points for k in p))
     keys = tuple(sorted(keys, key=lambda k: k.startswith("solver.")))  # scene fields first, stable
     ids = _task_ids(points, keys)
-    tasks, seen = [], {}
+    tasks: list[Task] = []
+    seen: dict[str, Task] = {}
     for task_id, overrides in zip(ids, points):
         task = _task(task_id, overrides, base, f"{source}: task {task_id!r}")
         same = next((i for i, t in seen.items() if (t.scene, t.ida) == (task.scene, task.ida)), None)
@@ -175,9 +177,8 @@ def grid_from_dict(data: dict, name: str = "grid", base_dir=".", source: str = "
         listed = ", ".join(repr(i) for i in ids[:20]) + (", ..." if len(ids) > 20 else "")
         raise GridError(f"{source}: reference = {reference!r} is not a task of this grid; its tasks are {listed} "
                         "(or give a Richardson reference: [reference.richardson] with dt and a solver)")
-    warmup = data.get("warmup", False)
-    if not isinstance(warmup, bool):
-        raise GridError(f"{source}: warmup = {warmup!r} must be true or false")
+    warmup = flag(f"{source}: warmup", data.get("warmup", False), hint="true: an untimed compiling run first",
+                  error=GridError)
     return Grid(name=name, base=base, keys=keys, tasks=tuple(tasks), reference=reference, richardson=richardson,
                 warmup=warmup)
 
@@ -207,17 +208,10 @@ def _task(task_id: str, overrides: dict, base: Scene, where: str) -> Task:
 
 def _check_ida(ida: dict, where: str) -> None:
     """IDA's settings, checked as :func:`jaxanm.ida.integrate_ida` will (before any run)."""
-    def number(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-    if not (number(ida["rtol"]) and 0 < ida["rtol"] < 1):
-        raise GridError(f"{where}: rtol = {ida['rtol']!r} must be a number in (0, 1) (IDA: 1e-15 <= rtol <= 1e-3 "
-                        "is its useful range)")
-    if not (number(ida["atol"]) and ida["atol"] >= 0):
-        raise GridError(f"{where}: atol = {ida['atol']!r} must be a number >= 0 (relative to each unknown's scale)")
-    if not (isinstance(ida["max_order"], int) and not isinstance(ida["max_order"], bool)
-            and 1 <= ida["max_order"] <= 5):
-        raise GridError(f"{where}: max_order = {ida['max_order']!r} must be an integer from 1 to 5 (BDF orders)")
+    real(f"{where}: rtol", ida["rtol"], 0.0, 1.0, open_low=True, open_high=True,
+         hint="IDA's useful range is 1e-15 <= rtol <= 1e-3", error=GridError)
+    real(f"{where}: atol", ida["atol"], 0.0, hint="relative to each unknown's scale", error=GridError)
+    integer(f"{where}: max_order", ida["max_order"], 1, 5, hint="the orders of IDA's BDF formulas", error=GridError)
 
 
 def _richardson(table: dict, override_points: list, base: Scene, ids: set, source: str) -> Richardson:
@@ -227,9 +221,7 @@ def _richardson(table: dict, override_points: list, base: Scene, ids: set, sourc
     if not isinstance(spec, dict):
         raise GridError(f"{source}: reference must be a task id (reference = \"ID\") or a table "
                         "[reference.richardson] with dt and a solver (kind, tol, ...)")
-    dt = spec.get("dt")
-    if not (isinstance(dt, (int, float)) and not isinstance(dt, bool) and math.isfinite(dt) and dt > 0):
-        raise GridError(f"{where}: dt = {dt!r} must be a positive number (the coarsest of dt, dt/2, dt/4)")
+    dt = positive(f"{where}: dt", spec.get("dt"), hint="the coarsest of dt, dt/2, dt/4", error=GridError)
     if len(override_points) != 1:
         raise GridError(f"{where}: the reference runs the grid's [overrides], which must then be single values "
                         "(one scene); put axes such as time.dt in the [[solvers]] entries")

@@ -50,7 +50,7 @@ def cheapest(rows: list[dict], levels=(1e-2, 1e-3, 1e-4, 1e-5)) -> list[dict]:
               and isinstance(r.get("rel_err"), float) and math.isfinite(r["rel_err"])]
     out = []
     for level in levels:
-        best = {}
+        best: dict[str, dict] = {}
         for r in usable:
             if r["rel_err"] <= level and (method(r) not in best or r["wall_s"] < best[method(r)]["wall_s"]):
                 best[method(r)] = r

@@ -26,10 +26,10 @@ import uuid
 from contextlib import contextmanager
 from pathlib import Path
 
-from jaxanm._extras import require
 from jaxanm.errors import InputError
 from jaxanm.fsw.compare import load_run
-from jaxanm.sweep.grid import Grid, read_grid
+from jaxanm.internal import integer, require
+from jaxanm.sweep.grid import Grid, Richardson, read_grid
 from jaxanm.sweep.pareto import plot_pareto
 from jaxanm.sweep.richardson import write_reference
 from jaxanm.sweep.table import TABLE_NAME, add_errors, error_columns, write_table
@@ -128,7 +128,8 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
     if todo:
         _run_tasks(todo, rows, specs, table, grid, scheduler, workers, progress, reused)
     result = _ordered(rows, specs)
-    notes, plot = [], None
+    notes: list[str] = []
+    plot = None
     ref_dir, label, estimate = _reference(reference, grid, rows, out_dir, notes)
     if ref_dir is not None:
         result, plot = _errors_and_plot(result, ref_dir, label, estimate, grid, rows, out_dir, table, notes)
@@ -144,15 +145,15 @@ def run_sweep(grid, out_dir=None, scheduler: str | None = None, workers: int = 2
 def _checked_inputs(grid, scheduler: str | None, workers, reference) -> Grid:
     """The grid (read from its file if a path), after checking ``workers``, that
     ``reference`` holds a run (:class:`InputError`) and that the extras it needs are installed
-    (:class:`jaxanm._extras.MissingExtraError`, an :class:`InputError`)."""
+    (:class:`jaxanm.internal.MissingExtraError`, an :class:`InputError`)."""
     if not isinstance(grid, Grid):
         grid = read_grid(grid)
     require("dask.distributed", "sweep", "jaxanm sweep (its tasks run on Dask)")
     tasks = (*grid.tasks, *(grid.richardson.tasks if grid.richardson is not None else ()))
     if any(t.ida is not None for t in tasks):
         require("sksundae", "ida", "a sweep task of kind \"ida\" (SUNDIALS IDA)")
-    if scheduler is None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise InputError(f"workers must be an integer >= 1, got {workers!r}")
+    if scheduler is None:
+        integer("workers", workers, 1, hint="the processes of the local Dask cluster")
     if reference is not None:
         try:
             load_run(reference)
@@ -199,7 +200,7 @@ def _reference(reference, grid: Grid, rows: dict, out_dir: Path, notes: list):
         else:
             notes.append(f"reference task {grid.reference!r} failed: no errors and no Pareto plot")
     elif grid.richardson is not None:
-        ref_dir, estimate = _richardson(grid, rows, out_dir, notes)
+        ref_dir, estimate = _richardson(grid.richardson, rows, out_dir, notes)
         label = (f"Richardson reference from dt = {grid.richardson.dt:g}, /2, /4 (estimated error "
                  f"{estimate['rel_err']:.1e})" if estimate else "")
     return ref_dir, label, estimate
@@ -211,19 +212,19 @@ def _errors_and_plot(result: list, ref_dir: Path, label: str, estimate, grid: Gr
     table rewritten with them, and the Pareto plot (None when no error is positive, with a note)."""
     result = add_errors(result, ref_dir, out_dir)
     plot = plot_pareto(result, out_dir / PLOT_NAME, f"sweep {grid.name} ({grid.base.name}): errors against {label}")
-    if estimate is not None:
-        result.append(_estimate_row(grid, rows, estimate))
+    if estimate is not None and grid.richardson is not None:  # (an estimate comes from a Richardson reference)
+        result.append(_estimate_row(grid.richardson, rows, estimate))
     write_table(table, result, grid.keys, errors=True)
     if plot is None:
         notes.append("no task has a positive error against the reference: no Pareto plot")
     return result, plot
 
 
-def _richardson(grid: Grid, rows: dict, out_dir: Path, notes: list):
-    """The Richardson reference of ``grid`` from its three finished runs, written to
+def _richardson(richardson: Richardson, rows: dict, out_dir: Path, notes: list):
+    """The grid's Richardson reference from its three finished runs, written to
     :data:`REFERENCE_DIR`: ``(directory, error columns of its estimate)``, or ``(None, None)``
     with a note when a run failed or the runs cannot be extrapolated."""
-    ids = [t.id for t in grid.richardson.tasks]
+    ids = [t.id for t in richardson.tasks]
     failed = [i for i in ids if rows[i]["status"] != "ok"]
     if failed:
         notes.append(f"Richardson reference: task {failed[0]!r} failed: no errors and no Pareto plot")
@@ -238,14 +239,14 @@ def _richardson(grid: Grid, rows: dict, out_dir: Path, notes: list):
                      "|coarse - fine| / 3 (jaxanm.sweep.richardson)"}
 
 
-def _estimate_row(grid: Grid, rows: dict, estimate: dict) -> dict:
+def _estimate_row(richardson: Richardson, rows: dict, estimate: dict) -> dict:
     """The table row of a Richardson reference: its estimated error and its three runs' costs summed."""
-    runs = [rows[t.id] for t in grid.richardson.tasks]
+    runs = [rows[t.id] for t in richardson.tasks]
     def number(v):
         return isinstance(v, (int, float)) and not isinstance(v, bool)
 
     summed = {k: sum(r[k] for r in runs) for k in (*COST_COLUMNS, "task_s") if all(number(r.get(k)) for r in runs)}
-    steps = " ".join(f"{grid.richardson.dt / 2 ** k:g}" for k in range(3))
+    steps = " ".join(f"{richardson.dt / 2 ** k:g}" for k in range(3))
     return {"task": RICHARDSON_ROW, "status": "ok", "message": "", "reused": all(r.get("reused") for r in runs),
             **summed, "t_end": runs[0].get("t_end"), "kind": RICHARDSON_ROW, "solver": f"richardson dt={steps}",
             "dir": REFERENCE_DIR, **estimate}

@@ -80,7 +80,7 @@ def add_errors(rows: list[dict], reference_dir, sweep_dir) -> list[dict]:
     reference = load_run(reference_dir)
     out = []
     for row in rows:
-        errors = dict.fromkeys(ERROR_COLUMNS, math.nan)
+        errors: dict[str, float | str] = dict.fromkeys(ERROR_COLUMNS, math.nan)
         errors["compare_note"] = ""
         if row.get("status") != "ok":
             errors["compare_note"] = "task failed"

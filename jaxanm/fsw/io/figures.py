@@ -23,6 +23,7 @@ Conventions:
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Callable
 
@@ -96,7 +97,7 @@ def section(result, s: int, name: str) -> tuple[np.ndarray, dict[str, np.ndarray
     return coord, {key: np.asarray(line[key], dtype=np.float64)[k] for key in ("u", "v", "T")}
 
 
-def _figure(ncols: int) -> tuple[Figure, list]:
+def agg_figure(ncols: int) -> tuple[Figure, list]:
     """A figure with ``ncols`` side-by-side axes on an Agg canvas."""
     fig = Figure(figsize=(5.5 * ncols, 4.5), layout="constrained")
     FigureCanvasAgg(fig)
@@ -130,7 +131,7 @@ def fig02_velocity_history(result) -> Figure:
     """Fig. 2: u(t) and v(t) at registration points (1) and (2)."""
     names = _probes(result, 2)
     t = np.asarray(result.probes["t"], dtype=np.float64)
-    fig, axes = _figure(2)
+    fig, axes = agg_figure(2)
     for ax, key, letter in zip(axes, ("u", "v"), "ab"):
         for label, name in zip(("(1)", "(2)"), names[:2]):
             ax.plot(t, np.asarray(result.probes[name][key], dtype=np.float64),
@@ -148,7 +149,7 @@ def fig03_temperature_history(result) -> Figure:
         raise FigureSkipped("no temperature field (isothermal scene)")
     names = _probes(result, 3)
     t = np.asarray(result.probes["t"], dtype=np.float64)
-    fig, (ax,) = _figure(1)
+    fig, (ax,) = agg_figure(1)
     for label, name in (("(1)", names[0]), ("(3)", names[2])):
         ax.plot(t, np.asarray(result.probes[name]["T"], dtype=np.float64),
                 label=f"point {label} [{name}]")
@@ -163,7 +164,7 @@ def fig05_velocity_sections(result) -> Figure:
     s = len(np.asarray(result.t)) - 1
     t = float(np.asarray(result.t, dtype=np.float64)[s])
     radius = _tool_radius(result, s)
-    fig, (ax_u, ax_v) = _figure(2)
+    fig, (ax_u, ax_v) = agg_figure(2)
     y, vals = section(result, s, "B-B")
     _mark_tool_span(ax_u, radius)
     ax_u.plot(y * MM, vals["u"], "-", color="tab:blue", label="u")
@@ -214,7 +215,7 @@ def mixing_figure(result, t_target: float, number: int) -> Figure:
     s = saved_index(result, t_target)
     t = float(np.asarray(result.t, dtype=np.float64)[s])
     if has_temperature(result):
-        fig, (ax_t, ax_m) = _figure(2)
+        fig, (ax_t, ax_m) = agg_figure(2)
         x, vals = section(result, s, "A-A")
         _mark_tool_span(ax_t, _tool_radius(result, s))
         ax_t.plot(x * MM, vals["T"], "-", color="tab:orange", label="T")
@@ -224,7 +225,7 @@ def mixing_figure(result, t_target: float, number: int) -> Figure:
         ax_m.set_title("(b) material mixing state")
     else:
         log.info("fig%02d: no temperature field (isothermal scene); T panel omitted", number)
-        fig, (ax_m,) = _figure(1)
+        fig, (ax_m,) = agg_figure(1)
         ax_m.set_title("material mixing state")
     _mixing_axes(ax_m, result, s)
     fig.suptitle(f"Fig. {number} - t = {t:.4g} s (requested {t_target:g} s)")
@@ -240,7 +241,7 @@ def temperature_maps(result, times: list[float | None], number: int) -> Figure:
         raise FigureSkipped("no temperature field (isothermal scene)")
     t_all = np.asarray(result.t, dtype=np.float64)
     indices = [len(t_all) - 1 if t is None else saved_index(result, t) for t in times]
-    fig, axes = _figure(len(indices))
+    fig, axes = agg_figure(len(indices))
     for ax, s, letter in zip(axes, indices, "abcd"):
         pts = np.asarray(result.points, dtype=np.float64)[s] * MM
         T = np.asarray(result.T, dtype=np.float64)[s]
@@ -261,8 +262,9 @@ def temperature_maps(result, times: list[float | None], number: int) -> Figure:
 
 
 def paper_figures(result) -> list[tuple[str, Callable[[], Figure]]]:
-    """The paper's figures as ``(file name, builder)`` pairs, and those of a travelling tool
-    (:mod:`jaxanm.fsw.io.weld_figures`); a builder may raise :class:`FigureSkipped`."""
+    """The paper's figures as ``(file name, builder)`` pairs; a builder may raise
+    :class:`FigureSkipped`.  A travelling tool's figures are :mod:`jaxanm.fsw.io.weld_figures`'
+    (a run writes both: :func:`jaxanm.fsw.io.output.figure_builders`)."""
     specs = [
         ("fig02_velocity_history.png", lambda: fig02_velocity_history(result)),
         ("fig03_temperature_history.png", lambda: fig03_temperature_history(result)),
@@ -270,12 +272,9 @@ def paper_figures(result) -> list[tuple[str, Callable[[], Figure]]]:
     ]
     for key, t in MIXING_TIMES.items():
         number = int(key[3:])
-        specs.append((f"{key}_mixing_t{t:g}.png",
-                      lambda t=t, number=number: mixing_figure(result, t, number)))
+        specs.append((f"{key}_mixing_t{t:g}.png", functools.partial(mixing_figure, result, t, number)))
     specs += [
         ("fig10_temperature_maps.png", lambda: temperature_maps(result, [0.001, None], 10)),
         ("fig11_temperature_maps.png", lambda: temperature_maps(result, [0.05, 0.08], 11)),
     ]
-    from .weld_figures import weld_figures  # (it builds on this module's helpers)
-
-    return specs + weld_figures(result)
+    return specs

@@ -25,15 +25,18 @@ import enum
 import json
 import logging
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
+from matplotlib.figure import Figure
 
-from jaxanm._extras import missing_extra_message
 from jaxanm.checkpoint import atomic_path
 from jaxanm.fsw.io import figures
+from jaxanm.fsw.io.weld_figures import weld_figures
+from jaxanm.internal import missing_extra_message
 
 log = logging.getLogger(__name__)
 
@@ -98,8 +101,8 @@ def spatial_accuracy(result) -> dict | None:
       ``rise_errors``, the same at every saved time from 0.01 s on (one solve,
       :func:`jaxanm.fsw.axisymmetric.rise_errors`).
 
-    At fsw_paper's dr the band is 0.28 points wide and the rise 15-18 % too high
-    (benchmarks/results/spatial_convergence.md).
+    How many points the shipped clouds put across the band and how far their rise is off:
+    docs/physics/accuracy.md (from benchmarks/results/spatial_convergence.md).
     """
     from jaxanm.fsw import axisymmetric, geometry
     from jaxanm.fsw.scene import Scene
@@ -107,7 +110,7 @@ def spatial_accuracy(result) -> dict | None:
     scene = getattr(result, "scene", None)
     if not isinstance(scene, Scene):
         return None
-    block = {}
+    block: dict[str, Any] = {}
     if scene.has("viscous"):
         width, spacing = axisymmetric.shear_band_width(scene), geometry.edge_spacing(scene.geometry)
         block.update(shear_band_width_m=width, edge_spacing_m=spacing, shear_band_points=width / spacing)
@@ -181,7 +184,7 @@ def probe_oscillation(result, degree: int = 2) -> dict | None:
                and np.count_nonzero((t >= w[0]) & (t <= w[1])) >= OSCILLATION_SAMPLES]
     if not windows:
         return None
-    block = {"windows": [list(w) for w in windows], "degree": degree, "speed": {}, "T": {}}
+    block: dict[str, Any] = {"windows": [list(w) for w in windows], "degree": degree, "speed": {}, "T": {}}
     for name in names:
         p = result.probes[name]
         speed = np.hypot(np.asarray(p["u"], dtype=np.float64), np.asarray(p["v"], dtype=np.float64))
@@ -323,7 +326,7 @@ def write_fields(result, out_dir: str | os.PathLike) -> Path:
     run also stores the computational points as ``nodes`` (S, N, 2).
     """
     path = Path(out_dir) / "fields.npz"
-    arrays = {
+    arrays: dict[str, np.ndarray] = {
         "t": np.asarray(result.t, dtype=np.float64),
         "points": np.asarray(result.points, dtype=np.float64),
         "u": np.asarray(result.u, dtype=np.float64),
@@ -333,9 +336,12 @@ def write_fields(result, out_dir: str | os.PathLike) -> Path:
     }
     if getattr(result, "nodes", None) is not None:
         arrays["nodes"] = np.asarray(result.nodes, dtype=np.float64)
+    # numpy's stub would match the ** dict against savez's keyword allow_pickle (a bool); every
+    # key here is an array's name
+    save: Callable[..., None] = np.savez_compressed
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:  # a file object: np.savez would append ".npz" to a name
-            np.savez_compressed(f, **arrays)
+            save(f, **arrays)
     return path
 
 
@@ -444,15 +450,23 @@ def write_run(result, out_dir: str | os.PathLike, scene) -> list[Path]:
     return write_outputs(result, out_dir, {"kind": scene.solver.kind, "options": result.solver})
 
 
+def figure_builders(result) -> list[tuple[str, Callable[[], Figure]]]:
+    """Every figure a run writes, as ``(file name, builder)`` pairs: the paper's
+    (:func:`jaxanm.fsw.io.figures.paper_figures`), then a travelling tool's
+    (:func:`jaxanm.fsw.io.weld_figures.weld_figures`); a builder may raise
+    :class:`~jaxanm.fsw.io.figures.FigureSkipped`."""
+    return figures.paper_figures(result) + weld_figures(result)
+
+
 def write_figures(result, out_dir: str | os.PathLike) -> list[Path]:
-    """Write the paper's figures (PNG, 150 dpi) into ``out_dir``; return the paths written.
+    """Write the figures of :func:`figure_builders` (PNG, 150 dpi) into ``out_dir``; return the paths written.
 
     A figure whose data is absent is skipped with a logged note, and a file of that name
     left by an earlier run in the same directory is removed (it would describe another run).
     """
     out_dir = Path(out_dir)
     written = []
-    for name, build in figures.paper_figures(result):
+    for name, build in figure_builders(result):
         path = out_dir / name
         try:
             fig = build()

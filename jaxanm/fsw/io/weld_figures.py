@@ -20,7 +20,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, ScalarFormatter
 from matplotlib.tri import LinearTriInterpolator, Triangulation
 
-from .figures import MM, FigureSkipped, _figure, has_temperature, section
+from .figures import MM, FigureSkipped, has_temperature, section
+from .figures import agg_figure as _figure
 
 __all__ = ["material_paths", "paths", "travels", "weld_figures", "weld_temperature_map"]
 
