@@ -13,8 +13,9 @@ orders and wall time, cold and warm, on the problems of ``tests/test_continuatio
 Methods: :func:`jaxanm.continuation` at orders 8 and 15 (the default), tol 1e-8 (eq. 26), and
 :func:`jaxanm.newton_continuation` with its defaults (tol 1e-8, ds 0.1, no ds_max, target 4
 iterations) and with ds_max 0.25 (shorter steps: more factorisations, a closer interpolant).
-Accuracy beside the cost: the Bratu fold from each branch (``limit_points``; for
-Newton from its cubic Hermite interpolant) against the discrete fold solved directly (Newton
+Accuracy beside the cost: the Bratu fold from each branch (``limit_points``: the fold events,
+the ANM's from its series, polished on the fold's augmented system where the series is not
+accurate enough and always for Newton) against the discrete fold solved directly (Newton
 on R = 0, R_u phi = 0, |phi| = 1), the truss's limit loads against the closed form, and the
 largest residual at the points.
 
@@ -218,8 +219,9 @@ def markdown(results: dict) -> str:
         "defaults (ds 0.1, no ds_max, 4 iterations targeted). Bratu from rest through the fold to "
         "u(1/2) = 2 (2D: u = 3 at the centre); truss from rest through both limit points to P = 2 P*. "
         "`limit error`: the fold's lam against the discrete fold solved directly (Bratu), the limit loads "
-        "against the closed form (truss), relative to the largest; Newton's come from its cubic Hermite "
-        "interpolant. Cold: the first call in a fresh process (each case its own; compilation included, "
+        "against the closed form (truss), relative to the largest; the folds are the branch's fold events "
+        "(the ANM's from its series unless polished, Newton's polished on the fold's augmented system). "
+        "Cold: the first call in a fresh process (each case its own; compilation included, "
         "the import of jaxanm before it not: `import (s)`); warm: the median of the repeats after one "
         "untimed call. The 2D 50 x 50 case gives no pattern: it is found from the residual's jaxpr.",
         "",

@@ -29,12 +29,13 @@ def test_no_function_longer_than_80_lines():
 FSW_IMPORTS = {
     # the data flow: scene -> geometry -> physics -> discretisation -> (start) -> record -> lagrangian -> simulate
     "scene_sections": set(),
-    "scene": {"scene_sections"},
+    "effects": set(),
+    "scene": {"scene_sections", "effects"},
     "scene_text": set(),
     "geometry": {"scene"},
-    "physics": {"scene", "geometry"},
-    "discretisation": {"scene", "geometry", "physics"},
-    "start": {"scene", "geometry", "physics", "discretisation"},
+    "physics": {"scene", "geometry", "effects"},
+    "discretisation": {"scene", "geometry", "physics", "effects"},
+    "start": {"scene", "geometry", "physics", "discretisation", "effects"},
     "record": {"scene", "geometry", "discretisation", "start"},
     "lagrangian": {"scene", "geometry", "discretisation", "start", "record"},
     "simulate": {"scene", "geometry", "discretisation", "start", "record", "lagrangian", "stability"},
@@ -43,12 +44,15 @@ FSW_IMPORTS = {
     "io.figures": {"scene", "record"},
     "io.weld_figures": {"io.figures"},
     "io.output": {"scene", "geometry", "record", "axisymmetric", "oscillation", "io", "io.figures",
-                  "io.weld_figures"},
+                  "io.weld_figures", "process"},
     # analyses of a scene or of results, beside the flow
     "axisymmetric": {"scene"},
     "oscillation": set(),
     "compare": set(),
     "energy": {"scene", "geometry", "physics", "discretisation"},
+    "mass_flux": {"energy"},
+    "process": {"energy", "mass_flux"},
+    "manufactured": {"discretisation", "geometry", "physics"},
     "calibration": {"scene", "geometry", "physics", "discretisation", "record"},
     "ida_scene": {"scene", "geometry", "discretisation", "record"},
     "stability": {"geometry", "discretisation"},
@@ -278,8 +282,6 @@ PRIVATE_IMPORTS_TO_MOVE = {
         "_problem.py is being rewritten (series): rename it relative_change there and import that",
     ("jaxanm/_solver/newton.py", "_relative_change"):
         "_solver/ and _problem.py are being rewritten (series): import relative_change once renamed",
-    ("jaxanm/fsw/start.py", "_relative_change"):
-        "fsw/start.py is being rewritten (weld): take relative_change from jaxanm.internal",
     ("jaxanm/fsw/scene.py", "_check"):
         "fsw/scene*.py are being rewritten (weld): the scene's value checks become jaxanm._checks calls",
     ("jaxanm/fsw/scene.py", "_as_str"): "as _check (weld): a public converter of scene_sections",
@@ -316,12 +318,6 @@ def test_no_private_name_imported_from_another_module():
 
 
 FACADE_BYPASSES_TO_MOVE = {
-    ("jaxanm.fsw.discretisation", "jaxanm._factorization"): "weld's file: sparse_lu from jaxanm.internal",
-    ("jaxanm.fsw.geometry", "jaxanm._x64"): "weld's file: entry_point from jaxanm.internal",
-    ("jaxanm.fsw.stability", "jaxanm._x64"): "weld's file: entry_point from jaxanm.internal",
-    ("jaxanm.fsw.start", "jaxanm._factorization"): "weld's file: factorize from jaxanm.internal",
-    ("jaxanm.fsw.start", "jaxanm._problem"): "weld's file: Problem, relative_change from jaxanm.internal",
-    ("jaxanm.fsw.start", "jaxanm._x64"): "weld's file: entry_point from jaxanm.internal",
     ("jaxanm.fsw.scene_sections", "jaxanm._solver"): "weld's file (its solver settings are being "
                                                      "reworked): make_solver, solver_kinds from jaxanm.internal",
 }

@@ -53,9 +53,9 @@ def test_shipped_scenes_load_and_paper_values():
     assert (s.solver.kind, s.solver.order, s.solver.tol, s.solver.adaptive) == ("anm", 7, 1e-6, True)
     assert [p.name for p in s.probes] == ["1", "2", "3"]
     assert [x.name for x in s.sections] == ["A-A", "B-B"]
-    assert set(s.effects) == set(EFFECTS) - {"tracers", "slip", "traverse"}
+    assert set(s.effects) == set(EFFECTS) - {"tracers", "slip", "traverse", "incompressible", "shoulder"}
     eulerian = load_scene("fsw_tracers")
-    assert set(eulerian.effects) == set(EFFECTS) - {"lagrangian", "slip", "traverse"}
+    assert set(eulerian.effects) == set(EFFECTS) - {"lagrangian", "slip", "traverse", "incompressible", "shoulder"}
     assert dataclasses.replace(eulerian, name=s.name, effects=s.effects) == s
     # the penalty is 0.1 mu_ref, as its comment documents, written with three significant
     # digits (4.08e5): within half a unit of the third digit, 0.005 / 4.08 relative

@@ -29,10 +29,16 @@ def _cell(value) -> str:
     return f"`{text}`".replace("|", "\\|")
 
 
+def _names(items) -> str:
+    """Effect names as a table cell."""
+    return ", ".join(f"`{x}`" for x in items) or "—"
+
+
 def scene_keys_markdown() -> str:
     """The scene-key page: the effects, then per section every key, its default and its value
     in the scenes of :data:`COMPARED`."""
     from jaxanm.fsw import scene as sc
+    from jaxanm.fsw.effects import REGISTRY
 
     shipped = {name: sc.load_scene(name) for name in COMPARED}
     lines = ["# Scene keys", "",
@@ -46,9 +52,15 @@ def scene_keys_markdown() -> str:
              "Top level: `name` (a string), `effects` (a list of the names below), "
              "`[[probes]]` (registration points: `name`, `x`, `y`) and `[[sections]]` "
              "(registration lines: `name`, `start`, `end`, `samples`).", "",
-             "## Effects", "", "| effect | needs |", "| --- | --- |"]
-    lines += [f"| `{e}` | {', '.join(f'`{r}`' for r in sc.EFFECT_REQUIRES.get(e, ())) or '—'} |"
-              for e in sc.EFFECTS]
+             "## Effects", "",
+             "One record per effect (`jaxanm.fsw.effects.REGISTRY`): what it needs, what it cannot be "
+             "combined with, its keys (each must keep its default unless the effect is listed) and what "
+             "it adds.", "",
+             "| effect | needs | excludes | keys (range) | adds |", "| --- | --- | --- | --- | --- |"]
+    for e in REGISTRY.values():
+        keys = ", ".join(f"`{p.key}` `[{p.low:g}, {p.high:g}]` {p.unit}" for p in e.parameters) or "—"
+        lines.append(f"| `{e.name}` | {_names(e.requires)} | {_names(o for o, _ in e.excludes)} | {keys} | "
+                     f"{', '.join(sorted(e.roles)) or '—'} |")
     lines += ["", "What each effect adds to the model: [Scenes](scenes.md#effects).", ""]
     for field in dataclasses.fields(sc.Scene):
         if field.default_factory is dataclasses.MISSING:  # name, effects, probes, sections

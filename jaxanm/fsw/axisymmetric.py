@@ -350,6 +350,7 @@ class _QuasiStaticFlow:
         self.m, self.omega, self.T0 = scene.material, self.delta * scene.tool.omega, scene.thermal.T0
         self.R1, self.R2 = scene.geometry.R1, scene.geometry.R2
         self.soft = scene.has("softening")
+        self.eps0 = scene.eps0
         self.r_p, self.w_p, self.ip = r_p, w_p, ip
         self.C = self.s = None
 
@@ -367,7 +368,7 @@ class _QuasiStaticFlow:
             logC = math.log(coef[0] * s1 ** m.n * 3 ** (0.5 * (1 - m.n)) * R1 ** 2)
         s = self.s
         for _ in range(100):
-            s, dF = couette_shear(math.exp(logC), r_p, coef, m.n, m.eps0, guess=s)
+            s, dF = couette_shear(math.exp(logC), r_p, coef, m.n, self.eps0, guess=s)
             G = np.sum(s / r_p * w_p)
             dG = np.sum(s / dF / r_p * w_p)  # d G / d log C
             step = (math.log(G) - math.log(omega)) * G / dG
@@ -376,7 +377,7 @@ class _QuasiStaticFlow:
                 break
         else:  # pragma: no cover - Newton on a convex increasing function of log C
             raise RuntimeError("axisymmetric: the torque constant did not converge")
-        s, _ = couette_shear(math.exp(logC), r_p, coef, m.n, m.eps0, guess=s)
+        s, _ = couette_shear(math.exp(logC), r_p, coef, m.n, self.eps0, guess=s)
         self.C, self.s = math.exp(logC), s
         return self.C, s
 

@@ -16,9 +16,10 @@ import numpy as np
 import scipy.sparse
 
 from .. import mls
-from .._factorization import sparse_lu
-from .geometry import PLATE_EDGE, Cloud, build_cloud, cloud_stencils, rigid
-from .physics import CONSTANTS, Effects, complete_fields, mu_reference, residual_for
+from ..internal import sparse_lu
+from .effects import CONSTANTS, REGISTRY, Effects, scene_value
+from .geometry import PLATE_EDGE, RING, TOOL_EDGE, Cloud, build_cloud, cloud_stencils, rigid, spacing
+from .physics import complete_fields, mu_reference, residual_for
 from .scene import Scene
 
 __all__ = ["Discretisation", "Model", "Refit", "discretise", "make_model"]
@@ -53,17 +54,19 @@ class Model:
         return len(self.fields) * self.cloud.size
 
     def constants(self) -> dict:
-        """``params["c"]``: the scalars of :data:`CONSTANTS` as float64 numpy scalars.
+        """``params["c"]``: the scalars of :data:`jaxanm.fsw.effects.CONSTANTS` as float64 numpy scalars.
 
         Scales: velocity ``U = omega R1``; temperature ``Ts = T0`` (see :meth:`scale`);
         viscosity ``mu_ref`` (:func:`mu_reference`).
         """
         s = self.scene
         m, tl, th, g = s.material, s.tool, s.thermal, s.geometry
-        values = dict(K=m.K, A=m.A, n=m.n, eps0=m.eps0, rho=m.rho, Cp=m.Cp, k=m.k, beta=m.beta,
+        values = dict(K=m.K, A=m.A, n=m.n, eps0=s.eps0, rho=m.rho, Cp=m.Cp, k=m.k, beta=m.beta,
                       rho_t=tl.rho, Cp_t=tl.Cp, k_t=tl.k, omega=tl.omega, h=th.h, Ta=th.Ta,
                       T0=th.T0, lam=s.mechanics.penalty, dr=g.dr, U=tl.omega * g.R1, Ts=th.T0,
-                      mu_ref=mu_reference(s), delta=tl.contact_state, U_tr=tl.traverse_speed)
+                      mu_ref=mu_reference(s))
+        # each effect's parameters, from its record (their defaults when the effect is absent)
+        values.update({p.constant: scene_value(s, p.key) for e in REGISTRY.values() for p in e.parameters})
         return {k: np.float64(values[k]) for k in CONSTANTS}
 
     def params(self, points: np.ndarray, stencils: mls.Stencils) -> dict:
@@ -73,7 +76,19 @@ class Model:
         normal = np.where(r[:, None] > 0, points / np.where(r > 0, r, 1.0)[:, None], 0.0)
         p = {"st": stencils, "c": self.constants(), "xy": points, "kind": self.cloud.kind,
              "partner": self.cloud.partner, "normal": normal}
+        if self.effects.incompressible:
+            p.update(self._pressure_params(points))
         return p
+
+    def _pressure_params(self, points: np.ndarray) -> dict:
+        """The continuity rows' point spacing (the stabilisation's h) and the point that fixes the
+        pressure's level: the leading point of the ring (largest x)."""
+        g, kind = self.scene.geometry, self.cloud.kind
+        h = spacing(g, np.hypot(points[:, 0], points[:, 1]), kind <= TOOL_EDGE)
+        ring = np.flatnonzero(kind == RING)
+        pin = np.zeros(kind.size, dtype=bool)
+        pin[ring[np.argmax(points[ring, 0])]] = True
+        return {"spacing": np.broadcast_to(np.asarray(h, dtype=np.float64), kind.shape).copy(), "pin": pin}
 
     def initial_values(self, points: np.ndarray) -> np.ndarray:
         """Initial field values (N, len(fields)): the tool (and its edge) turning, plate at rest, T0.
@@ -89,7 +104,7 @@ class Model:
         rest_u = -sc.tool.traverse_speed if self.effects.traverse else 0.0
         cols = {"u": np.where(sticking, -omega * points[:, 1], rest_u),
                 "v": np.where(sticking, omega * points[:, 0], 0.0),
-                "T": np.full(len(kind), sc.thermal.T0)}
+                "T": np.full(len(kind), sc.thermal.T0), "p": np.zeros(len(kind))}
         return np.stack([cols[f] for f in self.fields], axis=1)
 
     def fit_state(self, values: np.ndarray, stencils: mls.Stencils, refit: "Refit | None" = None,
@@ -118,7 +133,8 @@ class Model:
         return self.initial_values(points).T.reshape(-1).copy()
 
     def scale(self) -> np.ndarray:
-        """Characteristic magnitude of each unknown: ``omega R1`` for u, v and ``T0`` for T.
+        """Characteristic magnitude of each unknown: ``omega R1`` for u, v, ``T0`` for T and the
+        stress ``mu_ref omega`` for p.
 
         The ANM validity range (eq. 26) and Newton's convergence test use ``x / scale``.
         T is measured by T0 because the viscosity depends on it through ``(T/T0)^A``: a relative
@@ -128,7 +144,7 @@ class Model:
         """
         sc, N = self.scene, self.cloud.size
         per = {"u": sc.tool.omega * sc.geometry.R1, "v": sc.tool.omega * sc.geometry.R1,
-               "T": sc.thermal.T0}
+               "T": sc.thermal.T0, "p": mu_reference(sc) * sc.tool.omega}
         return np.concatenate([np.full(N, per[f]) for f in self.fields])
 
     def sparsity(self, params: dict) -> scipy.sparse.csr_matrix:

@@ -33,7 +33,7 @@ import math
 import numpy as np
 
 from .. import mls
-from .._x64 import entry_point
+from ..internal import entry_point
 from .scene import Geometry
 
 __all__ = ["Cloud", "build_cloud", "cloud_stencils", "edge_spacing", "evaluate_stencils", "neighbour_list", "rigid",

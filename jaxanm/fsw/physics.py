@@ -46,7 +46,8 @@ RING          V = 0                                 -k dT/dN = h (T - Ta) (or dT
 
 (alternatives in brackets when ``tool_conduction`` / ``robin`` are absent).  With ``slip`` the
 plate edge moves at ``delta omega (-y, x)`` and its temperature row gains the interface's
-frictional heat (:func:`_friction_heat`); with ``traverse`` the ring moves at (-U_tr, 0) and its
+frictional heat (:func:`_friction_heat`); with ``shoulder`` the plate's heat equation gains the
+source ``q_sh / H`` under the shoulder (r <= R_sh); with ``traverse`` the ring moves at (-U_tr, 0) and its
 row gains the inflow term ``rho Cp max(-V.N, 0) (T - T0)`` (docs/notes/traverse_and_slip.md).  The coincident
 tool-edge / plate-edge pair makes the conductivity jump exact in strong form: each side has
 its own one-sided approximation, and the pair carries the two interface conditions.
@@ -83,47 +84,16 @@ non-integer powers only of strictly positive quantities (``epsbar_reg^2 >= eps0^
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 
 from .. import mls
+from .effects import CONSTANTS, Effects
 from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE
 from .scene import Scene
 
 __all__ = ["CONSTANTS", "Effects", "complete_fields", "mu_reference", "residual_for", "viscosity"]
-
-CONSTANTS = ("K", "A", "n", "eps0", "rho", "Cp", "k", "beta", "rho_t", "Cp_t", "k_t", "omega",
-             "h", "Ta", "T0", "lam", "dr", "U", "Ts", "mu_ref", "delta", "U_tr")
-"""Scalars of ``params["c"]``: material, tool, thermal data, penalty, the scales (``U = omega R1``,
-``Ts``, ``mu_ref``), the contact state ``delta`` and the travel speed ``U_tr``."""
-
-
-class Effects(NamedTuple):
-    """Which terms the residual assembles (static: a new combination compiles a new residual)."""
-
-    viscous: bool
-    inertia: bool
-    softening: bool
-    conduction: bool
-    tool_conduction: bool
-    dissipation: bool
-    robin: bool
-    lagrangian: bool
-    tracers: bool
-    slip: bool = False
-    traverse: bool = False
-
-    @classmethod
-    def of(cls, scene: Scene) -> "Effects":
-        """The effect flags of a scene."""
-        return cls(*(scene.has(name) for name in cls._fields))
-
-    @property
-    def fields(self) -> tuple:
-        """Unknown fields, in layout order."""
-        return (("u", "v") if self.viscous else ()) + (("T",) if self.conduction else ())
 
 
 def mu_reference(scene: Scene) -> float:
@@ -163,8 +133,11 @@ def _old_value(st, fold):
     return _gather(st, fold, [st.phi])[0]
 
 
-def _momentum_rows(flags: Effects, st, p, dt, vel_nodal, vel_old_nodal, temp):
-    """u and v rows, velocity, and ``mu epsbar^2`` and its gradient at the points (the dissipation)."""
+def _momentum_rows(flags: Effects, st, p, dt, vel_nodal, vel_old_nodal, temp, pressure):
+    """u and v rows, velocity, ``mu epsbar^2`` and its gradient at the points (the dissipation),
+    and the continuity rows (``incompressible``, else None).
+
+    ``pressure``: p, its gradient and Laplacian at the points (``incompressible``, else None)."""
     c, kind = p["c"], p["kind"]
     ops = [st.phi, st.dx, st.dy, st.dxx, st.dxy, st.dyy]
     u, ux, uy, uxx, uxy, uyy = _gather(st, vel_nodal[0], ops)
@@ -187,6 +160,9 @@ def _momentum_rows(flags: Effects, st, p, dt, vel_nodal, vel_old_nodal, temp):
     lam_mu = c["lam"] / mu
     fx = (lam_mu + 1.0) * (uxx + vxy) + (uxx + uyy) + 2.0 * (exx * lx + exy * ly)
     fy = (lam_mu + 1.0) * (uxy + vyy) + (vxx + vyy) + 2.0 * (exy * lx + eyy * ly)
+    if flags.incompressible:  # sigma = -p I + 2 mu epsdot (the penalty is 0: scene validation)
+        fx = fx - pressure[1] / mu
+        fy = fy - pressure[2] / mu
     stiff = 1.0 + c["lam"] / c["mu_ref"]
     if flags.inertia:
         ax = (u - _old_value(st, vel_old_nodal[0])) / dt
@@ -210,7 +186,29 @@ def _momentum_rows(flags: Effects, st, p, dt, vel_nodal, vel_old_nodal, temp):
     # grad(mu epsbar^2) = mu (grad epsbar^2 + epsbar^2 grad ln mu): the source's local decay
     grad_mu_e2 = (mu * (de2x + e2 * lx), mu * (de2y + e2 * ly))
     friction = _friction_heat(c, p["normal"], xy, mu, exx, eyy, exy) if flags.slip else None
-    return rows, (u, v), (mu * e2, grad_mu_e2, friction)
+    continuity = _continuity_rows(p, ux + vy, mu, pressure) if flags.incompressible else None
+    return rows, (u, v), (mu * e2, grad_mu_e2, friction), continuity
+
+
+def _continuity_rows(p, div, mu, pressure):
+    """The pressure rows (``incompressible``): ``div V = alpha h^2 / mu_ref Lap p`` at every plate
+    point (edge and ring included: one-sided derivatives there), ``p = 0`` in the tool (rigid,
+    no pressure needed) and at the one plate point ``p["pin"]`` that fixes the pressure's level
+    (only its gradient enters the momentum rows).  Scaled by ``dr / U`` (continuity) and by the
+    stress scale ``mu_ref omega`` (``p = 0``).
+
+    ``alpha = c["alpha_p"]`` (``mechanics.pressure_stabilisation``) is Brezzi and Pitkaranta's
+    stabilisation, ``h`` the local point spacing, ``mu_ref`` the viscosity scale (the local mu
+    would weaken it in the slow, stiff zones where the mode lives, and strengthen it next to
+    the tool, where it costs accuracy): without it, equal-order MLS collocation has a
+    pressure mode that alternates from ring to ring where the rings are coarse, invisible to the
+    momentum rows (a quadratic fit has no gradient at a point whose neighbours on both sides
+    carry the opposite value) and to the continuity rows.  Its measurements (the pressure Schur
+    complement's smallest singular value, the flux error it adds): docs/notes/traverse_and_slip.md."""
+    c, kind = p["c"], p["kind"]
+    h = p["spacing"]
+    row = (div - c["alpha_p"] * h * h / c["mu_ref"] * pressure[3]) * (c["dr"] / c["U"])
+    return jnp.where((kind == TOOL) | (kind == TOOL_EDGE) | p["pin"], pressure[0] / (c["mu_ref"] * c["omega"]), row)
 
 
 def _friction_heat(c, normal, xy, mu, exx, eyy, exy):
@@ -256,6 +254,10 @@ def _heat_rows(flags: Effects, edge_rows: str, edge_source: str, st, p, dt, T_ol
     plate_heat = c["rho"] * c["Cp"] * dTdt - c["k"] * lapT
     if flags.dissipation:
         plate_heat = plate_heat - 3.0 * c["beta"] * source[0]
+    if flags.shoulder:  # the shoulder's heat input per area over the plate's thickness, r <= R_sh
+        xy = p["xy"]
+        under = xy[:, 0] * xy[:, 0] + xy[:, 1] * xy[:, 1] <= c["R_sh"] * c["R_sh"]
+        plate_heat = plate_heat - jnp.where(under, c["q_sh"] / c["H"], 0.0)
     s_plate = c["dr"] ** 2 / (c["Ts"] * (c["k"] + c["rho"] * c["Cp"] * c["dr"] ** 2 / dt))
     dTdn = Tx * normal[:, 0] + Ty * normal[:, 1]
     s_flux = c["dr"] / (c["k"] * c["Ts"])
@@ -302,18 +304,23 @@ def _heat_rows(flags: Effects, edge_rows: str, edge_source: str, st, p, dt, T_ol
 def residual_for(flags: Effects, edge_rows: str, edge_source: str):
     """The residual function of an effect combination (one function object per combination)."""
     nf = len(flags.fields)
+    at = {f: i for i, f in enumerate(flags.fields)}
 
     def residual(x, x_old, t, dt, p):
         """Implicit-Euler step residual (scaled rows, layout of ``flags.fields``)."""
         st = p["st"]
         N = p["kind"].shape[0]
         X, Xo = x.reshape(nf, N), x_old.reshape(nf, N)
-        rows, vel, source = [], None, None
-        temp = _gather(st, X[-1], [st.phi, st.dx, st.dy, st.dxx + st.dyy]) if flags.conduction else None
+        rows, vel, source, continuity = [], None, None, None
+        second = [st.phi, st.dx, st.dy, st.dxx + st.dyy]
+        temp = _gather(st, X[at["T"]], second) if flags.conduction else None
+        pressure = _gather(st, X[at["p"]], second) if flags.incompressible else None
         if flags.viscous:
-            rows, vel, source = _momentum_rows(flags, st, p, dt, X[:2], Xo[:2], temp)
+            rows, vel, source, continuity = _momentum_rows(flags, st, p, dt, X[:2], Xo[:2], temp, pressure)
         if flags.conduction:
-            rows.append(_heat_rows(flags, edge_rows, edge_source, st, p, dt, Xo[-1], temp, vel, source))
+            rows.append(_heat_rows(flags, edge_rows, edge_source, st, p, dt, Xo[at["T"]], temp, vel, source))
+        if continuity is not None:
+            rows.append(continuity)
         return jnp.concatenate(rows)
 
     return residual

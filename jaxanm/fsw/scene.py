@@ -3,7 +3,8 @@
 A :class:`Scene` holds everything a friction-stir-welding run needs, in SI units: geometry and
 point layout, plate material, tool, thermal boundary data, the penalty factor, time stepping,
 the nonlinear solver, registration points (probes), registration sections and the list of
-*effects* (which residual terms and unknowns the model assembles, see :data:`EFFECTS`).
+*effects* (which residual terms and unknowns the model assembles: :data:`EFFECTS`, each described
+by its record in :data:`jaxanm.fsw.effects.REGISTRY`).
 
 Every value is checked when the scene is built (from Python, from TOML or by
 :meth:`Scene.with_overrides`), before any computation: a bad value, or a combination of
@@ -30,6 +31,7 @@ import tomllib
 from pathlib import Path
 
 from ..errors import did_you_mean
+from .effects import EFFECTS, REGISTRY, scene_value
 from .scene_sections import (  # noqa: F401 - re-exported: the sections are part of this module's API
     _NAME_CHARS,
     EDGE_ROWS,
@@ -87,63 +89,9 @@ log = logging.getLogger(__name__)
 SCENES_DIR = Path(__file__).with_name("scenes")
 """Directory of the shipped scene files."""
 
-EFFECTS = (
-    "inertia",
-    "viscous",
-    "softening",
-    "conduction",
-    "tool_conduction",
-    "dissipation",
-    "robin",
-    "lagrangian",
-    "tracers",
-    "slip",
-    "traverse",
-)
-"""Effect names a scene may list (a contract with the CLI and the model):
-
-- ``viscous``: momentum balance of the power-law fluid with penalised incompressibility
-  (creates the velocity unknowns u, v; the tool turns rigidly, the ring r = R2 is fixed);
-- ``inertia``: ``rho dV/dt`` in the momentum balance;
-- ``softening``: viscosity depends on temperature through ``T^A`` (else ``T0^A``);
-- ``conduction``: heat equation in the plate (creates the temperature unknowns T);
-- ``tool_conduction``: heat equation in the tool, T and heat flux continuous at r = R1 (else the
-  plate edge r = R1 is insulated and the tool stays at T0);
-- ``dissipation``: heat source ``q = 3 beta mu epsbar^2``;
-- ``robin``: ``-k dT/dN = h (T - Ta)`` at r = R2 (else that edge is insulated);
-- ``lagrangian``: points move with the material (``x <- x + dt V``, tool points rotate rigidly),
-  stencils are rebuilt after every step;
-- ``tracers``: fixed (Eulerian) points, ``V . grad`` transport terms, passive tracer particles
-  advected for the mixing picture;
-- ``slip``: partial sliding at the tool (Schmidt-Hattel's contact state delta =
-  ``tool.contact_state``): the plate's velocity at the tool edge is ``delta omega (-y, x)``
-  (the tool turns at omega), and the interface shear ``tau(R1)`` sliding at ``(1 - delta)
-  omega R1`` releases ``(1 - delta) omega R1 tau(R1)`` W/m^2 of frictional heat at the
-  interface, all of it heat, split between tool and plate by the interface's flux condition
-  (delta = 1, sticking, is the paper's condition and gives its residual exactly);
-- ``traverse``: the tool travels along +x at ``U = tool.traverse_speed``, seen from the tool:
-  the ring r = R2 moves at (-U, 0) (the plate streams in on the leading side x > 0 and out on
-  the trailing side), the inflow part of the ring lets the plate carry T0 in (the Robin row
-  plus ``rho Cp max(-V.N, 0) (T - T0)``), the outflow part keeps the Robin row, and the
-  transport terms ``V . grad`` of the heat equation and the inertia carry the through-flow;
-  the tracers leave across the trailing side and re-enter on the leading side.  Needs fixed
-  points (``tracers``).  U = 0 gives the scene without it exactly.
-"""
-
-EFFECT_REQUIRES = {
-    "inertia": ("viscous",),
-    "softening": ("viscous", "conduction"),
-    "tool_conduction": ("conduction",),
-    "dissipation": ("viscous", "conduction"),
-    "robin": ("conduction",),
-    "lagrangian": ("viscous",),
-    "tracers": ("viscous",),
-    "slip": ("viscous",),
-    "traverse": ("viscous", "tracers"),
-}
-"""Effects that need other effects (the field they act on)."""
-
-
+EFFECT_REQUIRES = {name: effect.requires for name, effect in REGISTRY.items() if effect.requires}
+"""Effects that need other effects (the fields they act on): :attr:`Effect.requires` of the
+records of :data:`jaxanm.fsw.effects.REGISTRY`, by name."""
 
 _SECTIONS = {"geometry": Geometry, "material": Material, "tool": Tool, "thermal": Thermal,
              "mechanics": Mechanics, "time": Time, "solver": SolverSpec}
@@ -192,6 +140,8 @@ class Scene:
         self._validate_places()
 
     def _validate_effects(self):
+        """Names, exclusions and requirements of the listed effects, their parameters, their checks
+        (all read from their records, :data:`jaxanm.fsw.effects.REGISTRY`)."""
         _check("effects", self.effects, len(self.effects) > 0,
                f"list at least one effect of {EFFECTS}")
         for e in self.effects:
@@ -199,40 +149,34 @@ class Scene:
         _check("effects", self.effects, len(set(self.effects)) == len(self.effects),
                "an effect is listed twice")
         have = set(self.effects)
-        _check("effects", self.effects, bool(have & {"viscous", "conduction"}),
-               "list 'viscous' (velocity) and/or 'conduction' (temperature): without them the "
-               "scene has no unknowns")
-        _check("effects", self.effects, not {"traverse", "lagrangian"} <= have,
-               "'traverse' with 'lagrangian' is not supported: the plate streaming through the disc "
-               "would carry the moving cloud out of it; use 'tracers' (fixed points, the plate's "
-               "material points enter and leave) instead of 'lagrangian'")
+        creating = [e for e in EFFECTS if "unknowns" in REGISTRY[e].roles]
+        made = ", ".join(f"{e!r} {REGISTRY[e].fields}" for e in creating)
+        _check("effects", self.effects, bool(have & set(creating)),
+               f"list one of {creating} (they create the unknowns: {made}): without them the scene has no unknowns")
         for e in self.effects:
-            missing = [r for r in EFFECT_REQUIRES.get(e, ()) if r not in have]
+            for other, why in REGISTRY[e].excludes:
+                _check("effects", self.effects, other not in have, why)
+        for e in self.effects:
+            missing = [r for r in REGISTRY[e].requires if r not in have]
             _check("effects", self.effects, not missing,
                    f"effect {e!r} needs {missing} (add them or drop {e!r})")
         _check("mechanics.start", self.mechanics.start, self.mechanics.start == "rest" or "viscous" in have,
                "a start other than 'rest' needs the 'viscous' effect (the flow it solves); use 'rest'")
-        _check("effects", self.effects, not {"lagrangian", "tracers"} <= have,
-               "'lagrangian' (moving points) and 'tracers' (fixed points) exclude each other")
-        _check("effects", self.effects, not ("lagrangian" in have and self.geometry.layout == "graded"),
-               "'lagrangian' on geometry.layout = 'graded' is not supported yet: the graded cloud is "
-               "validated on fixed points only (its rezoning and the tool edge sliding past the fine "
-               "rings are untested); use 'tracers' instead of 'lagrangian', or layout 'polar'")
-        self._validate_contact(have)
+        self._validate_parameters(have)
+        for e in self.effects:
+            for key, value, allowed in (REGISTRY[e].check(self) if REGISTRY[e].check else ()):
+                _check(key, value, False, allowed)
 
-    def _validate_contact(self, have: set):
-        """The tool's contact state and travel need their effects, and fixed points."""
-        tl = self.tool
-        _check("tool.contact_state", tl.contact_state, tl.contact_state == 1.0 or "slip" in have,
-               "differs from 1 (sticking) but the scene does not list the 'slip' effect: add 'slip' to "
-               "effects, or leave tool.contact_state = 1")
-        _check("tool.traverse_speed", tl.traverse_speed, tl.traverse_speed == 0.0 or "traverse" in have,
-               "differs from 0 but the scene does not list the 'traverse' effect: add 'traverse' (and "
-               "'tracers') to effects, or leave tool.traverse_speed = 0")
-        _check("effects", self.effects, not ("slip" in have and "lagrangian" in have),
-               "'slip' with 'lagrangian' is not supported: the plate edge would turn slower than the "
-               "tool edge, separating the coincident interface pairs the moving cloud needs; use "
-               "'tracers' (fixed points) instead of 'lagrangian'")
+    def _validate_parameters(self, have: set):
+        """Each effect's parameters within their ranges, and at their defaults unless the effect is listed."""
+        for name, effect in REGISTRY.items():
+            for par in effect.parameters:
+                value, default = scene_value(self, par.key), _default(par.key)
+                _check(par.key, value, par.low <= value <= par.high,
+                       f"must be in [{par.low:g}, {par.high:g}] ({par.unit}): {par.doc}")
+                _check(par.key, value, value == default or name in have,
+                       f"differs from its default {default!r} but the scene does not list the {name!r} effect: add "
+                       f"{name!r} to effects{_and_requirements(name)}, or leave {par.key} = {default!r}")
 
     def _validate_places(self):
         g = self.geometry
@@ -252,9 +196,23 @@ class Scene:
                 _check(f"sections[{i}].{key}", pt, math.hypot(*pt) <= g.R2 * (1 + 1e-12),
                        f"must lie in the disc r <= geometry.R2 = {g.R2}")
 
+    @property
+    def eps0(self) -> float:
+        """The strain-rate regularisation the model uses (1/s): ``material.eps0``, or
+        ``material.eps0_relative * tool.omega`` when that is set (:class:`Material`)."""
+        m = self.material
+        return m.eps0_relative * self.tool.omega if m.eps0_relative > 0 else m.eps0
+
     def has(self, effect: str) -> bool:
         """Whether the scene lists ``effect``."""
         return effect in self.effects
+
+    def restricted_to(self, effects) -> "Scene":
+        """This scene with only ``effects`` (in this scene's order), the parameters of the
+        effects dropped back at their defaults (validated as any scene)."""
+        keep = [e for e in self.effects if e in set(effects)]
+        dropped = {p.key: _default(p.key) for e in self.effects if e not in keep for p in REGISTRY[e].parameters}
+        return self.with_overrides({"effects": ",".join(keep), **dropped})
 
     def with_overrides(self, overrides: dict) -> "Scene":
         """A new scene with ``{"section.field": value}`` replaced (values may be strings).
@@ -305,6 +263,17 @@ class Scene:
                 kwargs[key] = tuple(_section_from(sec, it, f"{source}: [[{key}]] #{i}")
                                     for i, it in enumerate(items))
         return cls(**kwargs)
+
+
+def _default(key: str):
+    """The default of the scene field ``"section.field"`` (its section class's)."""
+    section, field = key.split(".", 1)
+    return next(f.default for f in dataclasses.fields(_SECTIONS[section]) if f.name == field)
+
+
+def _and_requirements(name: str) -> str:
+    requires = REGISTRY[name].requires
+    return f" (with {', '.join(repr(r) for r in requires)})" if requires else ""
 
 
 def _section_dict(obj) -> dict:

@@ -28,6 +28,7 @@ __all__ = [
     "MAX_SAMPLES",
     "MAX_STEPS",
     "Material",
+    "OMEGA_MAX",
     "Mechanics",
     "Probe",
     "SOLVER_KINDS",
@@ -64,6 +65,8 @@ MAX_STEPS = 10_000_000
 MAX_ORDER = 30
 """Largest ANM series order a scene may ask for (the jet series compiles in a time that grows
 steeply with the order: benchmarks/results/hard_cases.md)."""
+OMEGA_MAX = 1000.0
+"""Fastest tool rotation a scene may ask for (rad/s)."""
 MAX_SAMPLES = 100_000
 """Largest number of samples of a registration section."""
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-.+")
@@ -198,6 +201,9 @@ class Geometry(_Section):
     re-seeded at their initial layout, and the state refitted there, once some plate point's
     nearest neighbour comes closer than ``rezone`` times its distance at the last seeding
     (the shear at the tool edge bunches the first rings; see :mod:`jaxanm.fsw.lagrangian`).
+
+    ``thickness`` (m, used by the ``shoulder`` effect only): the plate's thickness, through which
+    the shoulder's heat input per area spreads (the 2-D model's fields are uniform through it).
     """
 
     _name = "geometry"
@@ -212,6 +218,7 @@ class Geometry(_Section):
     band: float = 0.0
     dr_far: float = 0.0
     grading: float = 1.25
+    thickness: float = 3e-3
 
     def _validate(self):
         self._positive("R1", "R2", "dr", "c")
@@ -248,6 +255,11 @@ class Material(_Section):
 
     K in Pa s^n K^-A (the paper's 2.69e10 N/mm^2 is 2.69e16 Pa), density ``rho``, heat
     capacity ``Cp``, conductivity ``k``, dissipated fraction ``beta`` of the mechanical power.
+
+    ``eps0_relative`` (0: unused): when > 0, the regularisation follows the tool's rotation,
+    ``eps0 = eps0_relative * omega`` (and ``eps0`` is unused), so that it stays the same
+    fraction of the flow's strain rates at every rotation speed (the flow of the regularised
+    law depends on ``eps0 / omega`` only); :meth:`jaxanm.fsw.scene.Scene.eps0` is the value used.
     """
 
     _name = "material"
@@ -259,9 +271,13 @@ class Material(_Section):
     Cp: float = 920.0
     k: float = 140.0
     beta: float = 0.9
+    eps0_relative: float = 0.0
 
     def _validate(self):
         self._positive("K", "n", "eps0", "rho", "Cp", "k")
+        _check("material.eps0_relative", self.eps0_relative, 0.0 <= self.eps0_relative <= 1.0,
+               "must be in [0, 1] (0: material.eps0 is used as it is; e.g. 0.005, the paper's scenes' "
+               "0.1 1/s at omega = 20 rad/s)")
         _check("material.n", self.n, self.n <= 2.0, "must be in (0, 2] (power-law index)")
         _check("material.A", self.A, -20.0 <= self.A <= 20.0, "must be in [-20, 20]")
         _check("material.beta", self.beta, 0.0 <= self.beta <= 1.0, "must be in [0, 1]")
@@ -269,14 +285,17 @@ class Material(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class Tool(_Section):
-    """Tool (steel): density, heat capacity, conductivity (SI), rotation speed ``omega`` (rad/s),
-    contact state and travel speed.
+    """Tool (steel): density, heat capacity, conductivity (SI), rotation speed ``omega`` (rad/s,
+    at most :data:`OMEGA_MAX`), contact state and travel speed.
 
     ``contact_state`` (the ``slip`` effect): Schmidt-Hattel's delta in [0, 1], the plate's
     tangential velocity at the tool edge over the tool's, ``delta omega R1``; 1 is sticking
     (the paper's condition), 0 full sliding.  ``traverse_speed`` (the ``traverse`` effect):
     the tool's travel speed U >= 0 (m/s) along +x; the plate streams past it at (-U, 0).
-    Each must keep its default (1 and 0) unless the scene lists its effect.
+    ``shoulder_flux`` (W/m^2) and ``shoulder_radius`` (m, the ``shoulder`` effect): the heat
+    input per area of the plate under the shoulder, R1 < r <= shoulder_radius.  Each must keep
+    its default unless the scene lists its effect; their ranges are those of their effects'
+    records (:data:`jaxanm.fsw.effects.REGISTRY`), checked with the scene.
     """
 
     _name = "tool"
@@ -286,15 +305,14 @@ class Tool(_Section):
     omega: float = 20.0
     contact_state: float = 1.0
     traverse_speed: float = 0.0
+    shoulder_flux: float = 0.0
+    shoulder_radius: float = 4.5e-3
 
     def _validate(self):
         self._positive("rho", "Cp", "k", "omega")
-        _check("tool.contact_state", self.contact_state, 0.0 <= self.contact_state <= 1.0,
-               "must be in [0, 1]: the contact state delta, the plate's speed at the tool edge over the "
-               "tool's (1 sticking, 0 full sliding)")
-        _check("tool.traverse_speed", self.traverse_speed, self.traverse_speed >= 0.0,
-               "must be >= 0 (m/s): the tool travels along +x (travel along -x gives the same "
-               "fields turned by 180 degrees)")
+        _check("tool.omega", self.omega, self.omega <= OMEGA_MAX,
+               f"must be in (0, {OMEGA_MAX:g}] rad/s ({OMEGA_MAX * 30 / math.pi:.0f} rpm, beyond friction stir "
+               "welding practice, 30-300 rad/s)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -336,6 +354,9 @@ class Thermal(_Section):
 class Mechanics(_Section):
     """Penalty factor ``lambda`` (Pa s) of ``p = -lambda tr(epsdot)`` (paper eq. 9), and the flow at t = 0.
 
+    ``pressure_stabilisation`` (the ``incompressible`` effect, whose record gives its range): the
+    ``alpha`` of the continuity rows ``div V = alpha h^2 / mu_ref Lap p``; the penalty is then 0.
+
     ``start``: ``"rest"`` (the default: the plate at rest, the tool turning; the first step's
     iteration starts there), ``"quasi_static"`` (the stationary flow the momentum rows hold
     at T0, solved on the run's cloud before the first step by damped Newton,
@@ -350,6 +371,7 @@ class Mechanics(_Section):
     _name = "mechanics"
     penalty: float = 0.0
     start: str = "rest"
+    pressure_stabilisation: float = 0.01
 
     def _validate(self):
         _check("mechanics.penalty", self.penalty, self.penalty >= 0, "must be >= 0 (Pa s)")

@@ -42,7 +42,7 @@ import scipy.linalg
 
 import jaxanm
 
-from .._x64 import entry_point
+from ..internal import entry_point
 from .discretisation import Model
 from .geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE
 
@@ -283,7 +283,7 @@ class TemperatureGuard:
         self.model, self.params, self.x0 = model, params, x0
         self.margin, self.diagnose_max = float(margin), int(diagnose_max)
         self.lower, self.upper = min(th.T0, th.Ta), max(th.T0, th.Ta)
-        self.heated = bool(model.effects.dissipation or model.effects.slip)  # slip: friction heat
+        self.heated = model.effects.any("heat source")  # dissipation, friction heat, ...
         self.rise = 0.0  # largest rise above ``upper`` so far (heated scenes)
         self.floor = 1e-6 * th.T0  # the scale of a scene whose T0 = Ta and that has no source
         self._previous, self._change = None, None

@@ -39,13 +39,12 @@ import time
 
 import numpy as np
 
-from .._factorization import factorize
-from .._problem import Problem, _relative_change
-from .._x64 import entry_point
 from ..continuation import continuation
 from ..errors import StepFailure
+from ..internal import Problem, entry_point, factorize, relative_change
 from ..stats import Stats
 from .discretisation import Model, make_model
+from .effects import REGISTRY
 
 __all__ = ["StartReport", "continuation_state", "quasi_static_state"]
 
@@ -70,12 +69,18 @@ class StartReport:
         ``|R|_2`` of the scaled rows at each iterate, the start's first.
     stats : jaxanm.Stats
         Counters and wall time of the solve (factorisations, Jacobians, residuals).
+    path : list of (float, float, int)
+        The points of the path from the tool turning in place at :data:`START_OMEGA` (or the
+        scene's omega if slower) to the scene's omega and travel speed
+        (:func:`quasi_static_state`): ``(omega, U, Newton iterations)`` each; empty when the
+        flow was solved at once.
     """
 
     iterations: int
     step_lengths: list
     residual_norms: list
     stats: Stats
+    path: list = dataclasses.field(default_factory=list)
 
 
 def _line_search(problem: Problem, x, dx, r_norm: float, args: tuple):
@@ -108,7 +113,7 @@ def _damped_newton(problem: Problem, x, args: tuple, tol: float, max_iter: int):
         a, x, r = found
         lengths.append(a)
         norms.append(float(np.linalg.norm(r)))
-        if a == 1.0 and _relative_change(problem, dx, x) <= tol:
+        if a == 1.0 and relative_change(problem, dx, x) <= tol:
             return x, StartReport(it, lengths, norms, problem.stats)
     raise StepFailure(f"the quasi-static start flow did not converge in {max_iter} iterations "
                       f"(|R|_2 = {norms[-1]:.3g}, last step length {lengths[-1]:g})", step=0, t=0.0,
@@ -116,38 +121,170 @@ def _damped_newton(problem: Problem, x, args: tuple, tol: float, max_iter: int):
 
 
 def flow_scene(scene):
-    """The scene of the stationary flow rows: ``viscous`` alone, with the tool's kinematics
-    kept (``slip``: the plate edge at delta omega; ``traverse``: the ring at (-U, 0), which
-    needs ``tracers``; neither adds a term to the stationary momentum rows)."""
-    kept = [e for e in ("slip", "traverse", "tracers") if scene.has(e) and (e != "tracers" or scene.has("traverse"))]
-    return scene.with_overrides({"effects": ",".join(["viscous", *kept])})
+    """The scene of the stationary flow rows: ``viscous`` with the scene's effects whose records
+    have the role ``"start flow"`` (:data:`jaxanm.fsw.effects.REGISTRY`: the boundary's kinematics,
+    e.g. ``slip``'s plate edge at delta omega, ``traverse``'s ring at (-U, 0)) and what those
+    require (``traverse`` needs ``tracers``, whose transport terms the stationary rows drop with
+    the inertia)."""
+    kept = {"viscous"} | {e for e in scene.effects if "start flow" in REGISTRY[e].roles}
+    return scene.restricted_to(kept | {r for e in kept for r in REGISTRY[e].requires})
+
+
+def _with_flow(model: Model, flow: Model, x) -> np.ndarray:
+    """The initial unknowns of ``model`` with the fields of the start flow's unknowns ``x`` (of
+    ``flow``: velocity, and pressure with ``incompressible``) in place of their initial values."""
+    x0 = model.initial_state(model.cloud.points).reshape(len(model.fields), -1)
+    solved = np.asarray(x).reshape(len(flow.fields), -1)
+    for k, name in enumerate(flow.fields):
+        x0[model.fields.index(name)] = solved[k]
+    return x0.reshape(-1)
+
+
+def _without_pressure(begin: Model, cloud, stencils, tol: float, max_iter: int):
+    """The first iterate of the start flow ``begin`` at rest, and the report of what made it.
+
+    Without ``incompressible``: rest (no report).  With it, the flow without the pressure (the
+    momentum rows at the penalty 0: in the tool's circular flow div V vanishes by symmetry)
+    solved from rest by damped Newton, with p = 0: from rest, the damped iteration converges on
+    those rows and not on the pressure's (on the 0.06 mm graded cloud it finds no descent),
+    and from their root the pressure's rows converge in a few iterations.
+    """
+    rest = begin.initial_state(cloud.points)
+    if not begin.effects.incompressible:
+        return rest, None
+    plain = make_model(begin.scene.restricted_to(set(begin.scene.effects) - {"incompressible"}), cloud)
+    problem = Problem(plain.residual, plain.scale(), Stats(), "sparse", plain.sparsity)
+    x0, one = plain.initial_state(cloud.points), np.float64(1.0)
+    x, report = _damped_newton(problem, x0, (x0, one, one, plain.params(cloud.points, stencils)), tol, max_iter)
+    return _with_flow(begin, plain, x), report
+
+
+START_OMEGA = 20.0
+"""The rotation speed (rad/s) at which the start flow is solved from rest when the scene's tool
+turns faster: damped Newton from rest converges at 10-50 rad/s on the shipped clouds, and not at
+200 rad/s (the regularised law's slow zone, where the strain rate is within a decade of eps0,
+then lies where the first Newtonian update overshoots: docs/notes/traverse_and_slip.md)."""
+
+PATH_ITERATIONS = 12
+"""Newton iterations allowed at a point of the start flow's path before its step is halved."""
+
+PATH_TOL = 1e-8
+"""Newton's tolerance (scaled change) at the path's intermediate points; the end is solved to the
+start's own ``tol``."""
+
+MIN_PATH_STEP = 2.0 ** -12
+"""Shortest step of the path (a fraction of its length): below it the path stops, named."""
+
+
+@dataclasses.dataclass
+class _Leg:
+    """One leg of the start flow's path: a constant of ``params["c"]`` from ``begin`` to ``end``,
+    geometrically (``omega``) or linearly (``U_tr``)."""
+
+    constant: str
+    begin: float
+    end: float
+
+    def at(self, s: float) -> float:
+        if s >= 1.0:
+            return self.end
+        if self.constant == "omega":
+            return self.begin * (self.end / self.begin) ** s
+        return self.begin + (self.end - self.begin) * s
+
+    def name(self, value: float, c: dict) -> str:
+        if self.constant == "omega":
+            return f"omega = {value:.4g} rad/s"
+        advance = 2e3 * np.pi * value / float(c["omega"])
+        return f"U = {value:.4g} m/s (an advance of {advance:.3g} mm per revolution at omega = {float(c['omega']):g})"
+
+
+def _follow(problem: Problem, x, params: dict, leg: _Leg, report: StartReport) -> np.ndarray:
+    """The flow at the end of ``leg`` from ``x`` (the flow at its beginning): damped Newton at points
+    of the leg, each started from the last point's flow (a secant through the last two points
+    was tried: where the plate's slow zones stiffen, the pressure there moves erratically from
+    point to point, and the extrapolation failed where the last flow converged); a point that
+    fails halves the step, one that converges in few iterations doubles it.  Extends ``report``."""
+    one = np.float64(1.0)
+    s, step = 0.0, 0.25
+    while s < 1.0:
+        t = min(1.0, s + step)
+        guess = x
+        p = dict(params, c=dict(params["c"], **{leg.constant: np.float64(leg.at(t))}))
+        try:
+            y, done = _damped_newton(problem, guess, (guess, one, one, p), PATH_TOL, PATH_ITERATIONS)
+        except StepFailure:
+            step *= 0.5
+            if step < MIN_PATH_STEP:
+                raise StepFailure(
+                    f"the start flow's path stopped at {leg.name(leg.at(s), p['c'])}: no flow found a step "
+                    f"of {step * 2:.2g} of the leg further on; the cloud does not resolve the flow beyond "
+                    f"(refine geometry.dr and geometry.dr_far, or lower the speed)", step=0, t=0.0) from None
+            continue
+        report.iterations += done.iterations
+        report.step_lengths += done.step_lengths
+        report.residual_norms += done.residual_norms[1:]
+        report.path.append((float(p["c"]["omega"]), float(p["c"]["U_tr"]) if "U_tr" in p["c"] else 0.0,
+                            done.iterations))
+        x, s = y, t
+        if done.iterations <= 4:
+            step *= 2.0
+    return x
 
 
 @entry_point
 def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_iter: int = 50):
     """Initial unknowns of ``model`` with the quasi-static flow at T0; returns ``(x0, StartReport)``.
 
-    The velocity is the root of the stationary momentum rows at T = T0 on the model's cloud
-    and ``stencils`` (:func:`jaxanm.fsw.discretisation.make_model` of the scene with ``viscous`` alone,
-    whose rows are the scene's without the inertia term), from rest, to ``tol`` in the
-    scaled change of a full Newton step (1e-8: Newton converges quadratically there, so the
-    state is then a root to round-off, and the first step only adds the change of its own
-    time step); T = T0.  Raises :class:`jaxanm.StepFailure` if the iteration does not
-    converge in ``max_iter`` Newton iterations or its line search finds no decrease.
-    The report's ``stats.wall_time_s`` is the whole start, compilation included.
+    The velocity (and pressure, with ``incompressible``) is the root of the stationary momentum
+    rows at T = T0 on the model's cloud and ``stencils`` (:func:`flow_scene`: the scene's rows
+    without the inertia term), to ``tol`` in the scaled change of a full Newton step (1e-8:
+    Newton converges quadratically there, so the state is then a root to round-off, and the
+    first step only adds the change of its own time step); T = T0.
+
+    The tool turning in place at ``min(omega, START_OMEGA)`` is solved from rest by damped
+    Newton; a faster tool, and a travelling one, are then reached along a path (the ANM's
+    home regime, here by damped Newton at points of it): omega up to the scene's
+    (geometrically), then the travel speed from 0 up to the scene's.  From rest, the damped
+    iteration stalls where the plate streams past the turning tool (the slow zones of the
+    regularised law move with every update), and at a fast tool; along the path each point
+    starts next to its root.  The report's ``path`` lists the points.
+
+    Raises :class:`jaxanm.StepFailure` if the iteration from rest does not converge in
+    ``max_iter`` Newton iterations or its line search finds no decrease, or if the path stops
+    (the message names the speed it reached).  The report's ``stats.wall_time_s`` is the whole
+    start, compilation included.
     """
     began = time.perf_counter()
     flow = make_model(flow_scene(scene), model.cloud)
     params = flow.params(model.cloud.points, stencils)
     problem = Problem(flow.residual, flow.scale(), Stats(), "sparse", flow.sparsity)
-    rest = flow.initial_state(model.cloud.points)
+    c = params["c"]
+    legs = [_Leg("omega", min(float(c["omega"]), START_OMEGA), float(c["omega"]))]
+    if flow.effects.traverse:
+        legs.append(_Leg("U_tr", 0.0, float(c["U_tr"])))
+    first = scene.with_overrides({"tool.omega": legs[0].begin, **({"tool.traverse_speed": 0.0}
+                                                                  if flow.effects.traverse else {})})
+    begin = make_model(flow_scene(first), model.cloud)
     one = np.float64(1.0)  # t and dt: the rows hold no time derivative
-    velocity, report = _damped_newton(problem, rest, (rest, one, one, params), tol, max_iter)
-    x0 = model.initial_state(model.cloud.points).reshape(len(model.fields), -1)
-    for k, name in enumerate(("u", "v")):
-        x0[model.fields.index(name)] = velocity.reshape(2, -1)[k]
+    rest, before = _without_pressure(begin, model.cloud, stencils, tol, max_iter)
+    start = dict(params, c=dict(c, **{leg.constant: np.float64(leg.begin) for leg in legs}))
+    x, report = _damped_newton(problem, rest, (rest, one, one, start), tol, max_iter)
+    if before is not None:
+        report.iterations += before.iterations
+        report.step_lengths = before.step_lengths + report.step_lengths
+        report.residual_norms = before.residual_norms + report.residual_norms
+        report.stats.factorizations += before.stats.factorizations
+    for leg in legs:
+        if leg.end != leg.begin:
+            later = {g.constant: np.float64(g.begin) for g in legs[legs.index(leg) + 1:]}
+            x = _follow(problem, x, dict(params, c=dict(c, **later)), leg, report)
+    if report.path:  # the end of the path to the start's own tolerance
+        x, end = _damped_newton(problem, x, (x, one, one, params), tol, max_iter)
+        report.iterations += end.iterations
+        report.step_lengths += end.step_lengths
     report.stats.close(time.perf_counter() - began)
-    return x0.reshape(-1), report
+    return _with_flow(model, flow, x), report
 
 
 CONTINUATION_RATIO = 1e3
@@ -184,7 +321,7 @@ def continuation_state(scene, model: Model, stencils, order: int = 15, tol: floa
     params = flow.params(model.cloud.points, stencils)
     rest = flow.initial_state(model.cloud.points)
     params["rest"] = rest
-    lam0 = -float(np.log(CONTINUATION_RATIO * scene.tool.omega / scene.material.eps0))
+    lam0 = -float(np.log(CONTINUATION_RATIO * scene.tool.omega / scene.eps0))
     found = continuation(
         _regularised_flow(flow.residual), rest, lam0, params, lam_end=0.0, order=order, tol=tol,
         scale=flow.scale(), sparsity=flow.sparsity(params), max_steps=max_steps)
@@ -192,9 +329,7 @@ def continuation_state(scene, model: Model, stencils, order: int = 15, tol: floa
         raise StepFailure(f"the continuation start flow stopped at lam = {found.lam[-1]:.3g} ({found.stopped}) "
                           f"after {len(found.lam) - 1} steps, short of lam = 0", step=0, t=0.0,
                           residual_norm=float(found.residual_norm[-1]))
-    x0 = model.initial_state(model.cloud.points).reshape(len(model.fields), -1)
-    for k, name in enumerate(("u", "v")):
-        x0[model.fields.index(name)] = found.u[-1].reshape(2, -1)[k]
+    x0 = _with_flow(model, flow, found.u[-1])
     found.stats.close(time.perf_counter() - began)
     report = StartReport(len(found.lam) - 1, np.diff(found.lam).tolist(), found.residual_norm.tolist(), found.stats)
-    return x0.reshape(-1), report
+    return x0, report

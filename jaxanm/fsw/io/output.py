@@ -5,7 +5,7 @@ for a run of a scene, naming its solver kind)::
 
     summary.json                   scene, solver settings, t_end, n_points, stats, final probes,
                                    probe_positions, rezone_times (Lagrangian re-seedings),
-                                   spatial_accuracy
+                                   spatial_accuracy, process (a travelling tool)
     fields.npz                     t (S,), points (S, N, 2), u, v, T (S, N), material (N,);
                                    nodes (S, N, 2) when a Lagrangian run was rezoned
     probes.csv                     t, then <probe>_u, <probe>_v, <probe>_T per registration point
@@ -36,6 +36,7 @@ from matplotlib.figure import Figure
 from jaxanm.checkpoint import atomic_path
 from jaxanm.fsw.io import figures
 from jaxanm.fsw.io.weld_figures import weld_figures
+from jaxanm.fsw.process import process_summary
 from jaxanm.internal import missing_extra_message
 
 log = logging.getLogger(__name__)
@@ -271,7 +272,9 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
     temperature rise (:func:`spatial_accuracy`; null for a result without a scene);
     ``probe_oscillation`` how far the registration points' histories stray from a smooth
     trend (:func:`probe_oscillation`); ``time_error`` the step controller's estimate of the
-    time error (:func:`time_error`; null with fixed steps).
+    time error (:func:`time_error`; null with fixed steps); ``process`` the process
+    quantities of a travelling tool (:func:`jaxanm.fsw.process.process_summary`: peak
+    temperature, torque, power, temperature asymmetries, mass-flux error; null otherwise).
     """
     path = Path(out_dir) / "summary.json"
     final = {}
@@ -293,6 +296,7 @@ def write_summary(result, out_dir: str | os.PathLike, solver_settings=None) -> P
         "spatial_accuracy": spatial_accuracy(result),
         "probe_oscillation": probe_oscillation(result),
         "time_error": time_error(result),
+        "process": process_summary(result),
     }
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
