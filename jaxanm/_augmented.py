@@ -126,7 +126,8 @@ def locate_fold(system: ExtendedSystem, U, phi, *, step: int) -> Located:
     n, S, U = system.n, system.scale, np.array(U, dtype=np.float64)
     c = phi / S[:-1]
     c = psi = c / np.linalg.norm(c)  # psi: the left null vector's guess, phi's for a symmetric R_u
-    last = np.eye(n + 1)[-1]
+    last = np.zeros(n + 1)
+    last[-1] = 1.0  # e_(n+1), not a row of an (n+1)^2 identity: n is 250,000 on large problems
     previous = size = np.inf
     for iteration in range(1, MAX_ITERATIONS + 1):
         at = _scaled(system, U, step)
