@@ -362,7 +362,6 @@ def test_the_core_does_not_import_the_facade():
 CHECKS = "jaxanm._checks"
 INLINE_CHECKS_TO_MOVE = {
     "jaxanm/_run_inputs.py": (1, "sparse rewrites it: t0, t1, dt by real()"),
-    "jaxanm/_solver/anm.py": (1, "series rewrites it: ANM.order by integer(), as check_count does"),
     "jaxanm/_solver/newton.py": (1, "series rewrites it: ModifiedNewton.max_rate by real()"),
     "jaxanm/_step_control.py": (2, "schemes rewrites it: the controller's tolerances and bounds by real()"),
     "jaxanm/fsw/scene_sections.py": (2, "weld rewrites it: the scene converters' real and integer checks"),
