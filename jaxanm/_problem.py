@@ -222,6 +222,6 @@ def _pattern_key(pattern):
     return (csr.shape, csr.nnz, hash(csr.indptr.tobytes()), hash(csr.indices.tobytes()))
 
 
-def _relative_change(P: Problem, dx, x) -> float:
+def relative_change(P: Problem, dx, x) -> float:
     """``|dx| / |x|`` in the scaled norm (the Newton solvers' convergence test)."""
     return P.norm(dx) / max(P.norm(x), np.finfo(float).tiny)
