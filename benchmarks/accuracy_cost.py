@@ -242,7 +242,7 @@ def make_solver(method: str, order, tol):
     import jaxanm
 
     if method == "anm":
-        return jaxanm.ANM(order=order, tol=tol, max_substeps=1000)
+        return jaxanm.ANM.paper(order=order, tol=tol, max_substeps=1000)
     if method == "newton":
         return jaxanm.Newton(tol=tol, max_iter=50)
     if method == "mnewton":
@@ -403,7 +403,7 @@ def worker_refs(problem: str, cfg: dict) -> dict:
     if prob["x0"] is None:  # FSW: warm state after warm_steps from rest (ANM, tight, many sub-steps)
         t = time.perf_counter()
         xw, st, _ = run_implicit(
-            prob, jaxanm.ANM(order=7, tol=1e-10, max_substeps=5000), prob["x_rest"], t0=0.0, t1=prob["t0"]
+            prob, jaxanm.ANM.paper(order=7, tol=1e-10, max_substeps=5000), prob["x_rest"], t0=0.0, t1=prob["t0"]
         )
         info["warm"] = {"wall_s": time.perf_counter() - t, **st.summary()}
         x0 = xw

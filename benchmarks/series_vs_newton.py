@@ -94,7 +94,7 @@ def anm_acceptance(P: Problem, fact, coeffs, d_s, args, tol: float):
     order j >= 2 whose a_max reaches 1 and whose end point passes the end-point check (one more
     residual and solve each time it is tried), by the stepper's own acceptance
     (``jaxanm._solver.anm._ANMStep``); None if no order up to ``len(coeffs)`` passes."""
-    attempt = _ANMStep(ANM(order=coeffs.shape[0], tol=tol, criterion="state", adaptive=True), P, fact)
+    attempt = _ANMStep(ANM.paper(order=coeffs.shape[0], tol=tol, criterion="state", adaptive=True), P, fact)
     checks = P.stats.residual_evaluations  # each end-point check evaluates one residual
     for j in range(2, coeffs.shape[0] + 1):
         accepted = attempt._accept_early(coeffs[:j], d_s, *args)

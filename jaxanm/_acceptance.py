@@ -36,16 +36,22 @@ def validity_range(coeffs: np.ndarray, scale, tol: float, state=None) -> float:
     ``inf`` when the last coefficient vanishes (the series is exact); ``0`` when the first does
     not but a coefficient is non-finite.
     """
-    p = coeffs.shape[0]
-    n1 = np.linalg.norm(coeffs[0] / scale)
-    npp = np.linalg.norm(coeffs[-1] / scale)
-    if not (np.isfinite(n1) and np.isfinite(npp)):
+    state_norm = None if state is None else float(np.linalg.norm(state / scale))
+    return range_of_norms(coeffs.shape[0], float(np.linalg.norm(coeffs[0] / scale)),
+                          float(np.linalg.norm(coeffs[-1] / scale)), tol, state_norm)
+
+
+def range_of_norms(p: int, n1: float, np_: float, tol: float, state_norm: float | None = None) -> float:
+    """:func:`validity_range` of a series of order ``p`` from the scaled norms of its first and
+    last coefficients (and of the state, for ``criterion="state"``), for a caller that keeps
+    the norms that do not change from order to order."""
+    if not (np.isfinite(n1) and np.isfinite(np_)):
         return 0.0
-    if npp == 0.0:
+    if np_ == 0.0:
         return np.inf
-    amax = float((tol * n1 / npp) ** (1.0 / (p - 1)))
-    if state is not None:
-        amax = max(amax, float((tol * np.linalg.norm(state / scale) / npp) ** (1.0 / p)))
+    amax = float((tol * n1 / np_) ** (1.0 / (p - 1)))
+    if state_norm is not None:
+        amax = max(amax, float((tol * state_norm / np_) ** (1.0 / p)))
     return amax
 
 

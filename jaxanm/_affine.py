@@ -3,11 +3,13 @@
 A meshless residual is mostly linear maps of the unknowns (stencil gathers times constant
 weights, sums) feeding a few pointwise nonlinear terms.  Along a path ``x(a) = x_0 + sum a^k
 c_k`` the Taylor coefficients of an affine intermediate ``v = A x + b`` are ``A c_k``: they need
-no series arithmetic, one linear map per new coefficient.  ``jet`` does not know that: it
-multiplies a constant weight by a field series with zeros instantiated for the weight's
-terms (``jax/experimental/jet.py``, ``process_primitive``), O(K^2) products of the widest
-arrays of the residual.  :func:`split_affine` finds the *frontier*: the affine intermediates
-that a non-affine operation (or the output) consumes.  Then
+no series arithmetic, one linear map per new coefficient, where a Taylor arithmetic run
+through them would multiply each constant weight by a field series (``jax.experimental.jet``
+even instantiates zero series for the weights, ``jax/experimental/jet.py``,
+``process_primitive``): O(K^2) products of the widest arrays of the residual.  The series
+engine (:class:`jaxanm._series.AffinePath`) expands only the rest.  :func:`split_affine` finds
+the *frontier*: the affine intermediates that a non-affine operation (or the output)
+consumes.  Then
 
 - ``linear(x, *args)`` returns the frontier values (the affine part, evaluated as is), and
 - ``rest(frontier, *args)`` the outputs from the frontier values (the non-affine part),
@@ -20,13 +22,13 @@ calls that were not inlined) is "rest", which is always correct, only slower.
 
 from __future__ import annotations
 
+import collections
 from typing import Callable, NamedTuple
 
 import jax
+import jax.numpy as jnp
 from jax import lax
 from jax.extend import core as jex_core
-
-from ._jet_scale import scale
 
 # Linear in all operands jointly (jet's own ``deflinear`` list, restricted to real arithmetic).
 _LINEAR = {lax.neg_p, lax.add_p, lax.sub_p, lax.convert_element_type_p, lax.broadcast_in_dim_p,
@@ -95,14 +97,13 @@ def _scalar_factor(eqn, dep: list, scalars: set) -> bool:
 
 
 def _classify(jaxpr, scalar_factors_affine: bool = True):
-    """Each equation's kind ("const": independent of x, "affine", "rest"), the affine variables,
-    and the rest equations that multiply or divide by a constant (id(eqn) -> x operand's index).
-    With ``scalar_factors_affine=False`` a product or quotient by a scalar constant is "rest"."""
+    """Each equation's kind ("const": independent of x, "affine", "rest") and the affine
+    variables.  With ``scalar_factors_affine=False`` a product or quotient by a scalar constant
+    is "rest"."""
     depends = {jaxpr.invars[0]}
     affine = {jaxpr.invars[0]}
     scalars = set()  # x-independent values computed from rank-0 ones only (e.g. broadcast)
     kinds = []
-    scaled = {}
     for eqn in jaxpr.eqns:
         ins = [v for v in eqn.invars]
         dep = [isinstance(v, jex_core.Var) and v in depends for v in ins]
@@ -114,13 +115,10 @@ def _classify(jaxpr, scalar_factors_affine: bool = True):
         aff = [isinstance(v, jex_core.Var) and v in affine for v in ins]
         is_affine = _affine(eqn, dep, aff) and (scalar_factors_affine or not _scalar_factor(eqn, dep, scalars))
         kinds.append("affine" if is_affine else "rest")
-        if (not is_affine and sum(dep) == 1 and all(v is None for v in eqn.params.values())
-                and (eqn.primitive is lax.mul_p or (eqn.primitive is lax.div_p and dep[0]))):
-            scaled[id(eqn)] = dep.index(True)
         depends.update(eqn.outvars)
         if is_affine:
             affine.update(eqn.outvars)
-    return kinds, affine, scaled
+    return kinds, affine
 
 
 def _frontier(jaxpr, kinds, affine) -> list:
@@ -141,18 +139,20 @@ def _frontier(jaxpr, kinds, affine) -> list:
     return frontier
 
 
-def _evaluate(env: dict, eqns, scaled: dict) -> None:
-    """Bind ``eqns`` in order on the values in ``env`` (variable -> value), adding their outputs;
-    the ``scaled`` ones through :func:`jaxanm._jet_scale.scale`."""
+def _evaluate(env: dict, eqns) -> None:
+    """Bind ``eqns`` in order on the values in ``env`` (variable -> value), adding their outputs."""
     for eqn in eqns:
         vals = [v.val if isinstance(v, jex_core.Literal) else env[v] for v in eqn.invars]
-        if id(eqn) in scaled:  # a constant factor: linear for jet (jaxanm._jet_scale)
-            i = scaled[id(eqn)]
-            out = scale(vals[i], vals[1 - i], eqn.primitive.name)
-        else:
-            out = eqn.primitive.bind(*vals, **eqn.params)
+        out = eqn.primitive.bind(*vals, **eqn.params)
         for var, val in zip(eqn.outvars, out if eqn.primitive.multiple_results else [out]):
             env[var] = val
+
+
+MAX_SPLITS = 16
+"""Splits :func:`split_affine` keeps (the most recently made), by function and argument layout:
+the sparse tangent and the series of one run split the same residual."""
+
+_splits: collections.OrderedDict = collections.OrderedDict()
 
 
 def split_affine(fun: Callable, x, *args, scalar_factors_affine: bool = True) -> AffineSplit:
@@ -162,11 +162,26 @@ def split_affine(fun: Callable, x, *args, scalar_factors_affine: bool = True) ->
     functions take ``(x, *args)`` and ``(frontier, *args)`` with ``args`` of the same structure.
     ``scalar_factors_affine=False`` leaves products and quotients by scalar constants (a time
     step, a material constant) to the rest: the linear map then depends only on the array
-    arguments (stencil weights), which a tangent can cache (:mod:`jaxanm.jacobian`).
+    arguments (stencil weights), which a tangent can cache (:mod:`jaxanm.jacobian`).  The
+    split of a function (by identity) for one layout of its arguments is made once and kept
+    (:data:`MAX_SPLITS`).
     """
+    leaves, tree = jax.tree_util.tree_flatten((x, args))
+    key = (fun, scalar_factors_affine, tree,
+           tuple((jnp.shape(v), str(jnp.result_type(v)), bool(getattr(v, "weak_type", False))) for v in leaves))
+    if key not in _splits:
+        if len(_splits) >= MAX_SPLITS:
+            _splits.popitem(last=False)
+        _splits[key] = _split(fun, x, args, scalar_factors_affine)
+    _splits.move_to_end(key)
+    return _splits[key]
+
+
+def _split(fun: Callable, x, args: tuple, scalar_factors_affine: bool) -> AffineSplit:
+    """:func:`split_affine`, made."""
     closed = flat_jaxpr(fun, x, args)
     jaxpr, consts = closed.jaxpr, closed.consts
-    kinds, affine, scaled = _classify(jaxpr, scalar_factors_affine)
+    kinds, affine = _classify(jaxpr, scalar_factors_affine)
     frontier = _frontier(jaxpr, kinds, affine)
 
     def start_env(x_or_none, flat):
@@ -182,14 +197,14 @@ def split_affine(fun: Callable, x, *args, scalar_factors_affine: bool = True) ->
     def linear(x, *args):
         """Frontier values: the affine intermediates that the non-affine part consumes."""
         env = start_env(x, jax.tree_util.tree_leaves(args))
-        _evaluate(env, first_part, scaled)
+        _evaluate(env, first_part)
         return [env[v] for v in frontier]
 
     def rest(values, *args):
         """Outputs of ``fun`` from the frontier values (the non-affine part)."""
         env = start_env(None, jax.tree_util.tree_leaves(args))
         env.update(zip(frontier, values))
-        _evaluate(env, second_part, scaled)
+        _evaluate(env, second_part)
         out = jaxpr.outvars[0]
         return out.val if isinstance(out, jex_core.Literal) else env[out]
 

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse
 
 from ._factorization import Factorization, counted_solve, factorize
-from ._series import AffineFunctions, AffinePath, path_coefficients
+from ._series import AffineFunctions, AffinePath, orders_kept, path_coefficients
 from .errors import NonFiniteError, SingularMatrixError, StepFailure
 from .jacobian import SparseJacobian, dense_jacobian_function
 from .stats import Stats
@@ -84,10 +84,12 @@ class SeriesPath:
         self._terms: list[np.ndarray] = []
         with problem.stats.timer("series"):
             self._fns = problem.affine_functions(d_s, args)
+            if self._fns is not None:
+                self._fns.prepare(d_s, args, orders_kept(max_terms, lookahead), lookahead)
         self._path: AffinePath | None = None
 
     def _affine_path(self, f0=None) -> AffinePath:
-        """The series along this path (``f0``: the frontier at ``d_s`` when already known)."""
+        """The series along this path (``f0``: its state at ``d_s`` when already made)."""
         return AffinePath(self._fns, self._d_s, self._args, f0=f0, lookahead=self._lookahead,
                           max_terms=self._max_terms)
 
@@ -97,7 +99,7 @@ class SeriesPath:
         if self._fns is None:
             return P.residual(self._d_s, *self._args)
         with P.stats.timer("series"):
-            r, f0 = self._fns.residual_and_frontier(self._d_s, *self._args)
+            r, f0 = self._fns.start(self._d_s, *self._args)
             self._path = self._affine_path(f0)
             r = np.asarray(r)
         P.stats.residual_evaluations += 1
@@ -150,9 +152,12 @@ class Problem:
         return self._affine
 
     def residual(self, x, x_old, t, dt, params) -> np.ndarray:
-        """Step residual on the host."""
+        """Step residual on the host: by the series' start program when this run has made one
+        (one compiled program of the residual per run, not two), else the jitted residual."""
         with self.stats.timer("series"):
-            r = np.asarray(self._compiled.residual(x, x_old, t, dt, params))
+            fns = self._affine if isinstance(self._affine, AffineFunctions) else None
+            r = np.asarray(fns.start(x, x_old, t, dt, params)[0] if fns is not None
+                           else self._compiled.residual(x, x_old, t, dt, params))
         self.stats.residual_evaluations += 1
         return r
 
@@ -217,6 +222,6 @@ def _pattern_key(pattern):
     return (csr.shape, csr.nnz, hash(csr.indptr.tobytes()), hash(csr.indices.tobytes()))
 
 
-def _relative_change(P: Problem, dx, x) -> float:
+def relative_change(P: Problem, dx, x) -> float:
     """``|dx| / |x|`` in the scaled norm (the Newton solvers' convergence test)."""
     return P.norm(dx) / max(P.norm(x), np.finfo(float).tiny)

@@ -15,6 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import jet
 
+from ._compile_ahead import compile_ahead, wait
+from ._taylor import TaylorProgram, mirrored
 from ._x64 import entry_point
 
 
@@ -65,118 +67,129 @@ def taylor_coefficients(f: Callable, x0, terms: Sequence, *args) -> list:
     return [f0, *list(fs)]
 
 
-# Jets of up to this many terms are compiled for their exact length; longer ones are padded with
-# zero terms to the next size of a geometric ladder, so that a series of order p compiles
-# O(log p) jets beyond it instead of p (docstring of AffineFunctions).
-EXACT_TERMS = 8
-LADDER_GROWTH = 1.5
-
-
-def jet_length(terms: int, max_terms: int | None = None) -> int:
-    """Number of terms the compiled jet for ``terms`` known terms has: ``terms`` itself up to
-    :data:`EXACT_TERMS`, else the next rung of the ladder 8, 12, 18, 27, ... (capped at
-    ``max_terms``, the longest jet the series will need, so the top rung wastes nothing)."""
-    if terms <= EXACT_TERMS:
-        return terms
-    length = EXACT_TERMS
-    while length < terms:
-        length = int(np.ceil(length * LADDER_GROWTH))
-    return max(terms, min(length, max_terms)) if max_terms is not None else length
-
-
 class AffinePath:
     """Taylor coefficients of ``f(x(a), *args)`` along ``x(a) = x0 + sum_k a^k c_k``, one order at
-    a time, with the affine part of ``f`` applied outside ``jet`` (:mod:`jaxanm._affine`).
+    a time, with the affine part of ``f`` applied outside the Taylor arithmetic
+    (:mod:`jaxanm._affine`).
 
     The frontier values (stencil sums and the like, affine in x) have coefficients ``A c_k``:
-    one linear map (a ``jax.jvp`` of the affine part) per new ``c_k``, computed once and kept
-    on the device, stacked per frontier value.  Only the non-affine rest is expanded by
-    ``jet``, from the kept frontier coefficients, truncated at the k terms known: O(k^2) work
-    at order k, so a series of order p costs O(p^2) jet terms.  (Padding every order to
-    p - 1 terms with zeros would cost O(p^3) per series; the two are measured in
-    benchmarks/results/series_cost.md.)  Beyond :data:`EXACT_TERMS` terms the jet is padded to
-    the next rung of a geometric ladder (:func:`jet_length`): a few compiled jets instead of
-    one per order, for at most ``LADDER_GROWTH^2`` times the work of an exact one.
-    :meth:`next` appends ``c_k`` and returns ``f_k``.
-    ``f0``: the frontier values at ``x0`` when already known (from
-    :attr:`AffineFunctions.residual_and_frontier`).  ``lookahead=True``: :meth:`next` returns
-    ``f_{k+1}`` along the path with the provisional ``c_{k+1} = c_k`` instead of ``f_k`` (one
-    more term of the same jet; the ANM's Newton homotopy, :class:`jaxanm.ANM`).
-    ``max_terms``: the most path coefficients :meth:`next` will be given (p - 1 for an ANM
-    series of order p), so that the top rung of the ladder is no longer than needed; None: no
-    cap.
+    one linear map (a ``jax.jvp`` of the affine part) per new ``c_k``.  The non-affine rest is
+    expanded by incremental Taylor arithmetic (:class:`jaxanm._taylor.TaylorProgram`): the
+    coefficients of its intermediates stay on the device, and order k computes only
+    coefficient k of each, O(k) work per product instead of a jet's O(k^2), by one program
+    compiled for every order.  :meth:`next` appends ``c_k`` and returns ``f_k``.
+    ``f0``: the series' start at ``x0`` when already made (the second value of
+    :meth:`AffineFunctions.start`).  ``lookahead=True``: :meth:`next` returns ``f_{k+1}`` along
+    the path with the provisional ``c_{k+1} = c_k`` instead of ``f_k`` (one more order, not
+    kept; the ANM's Newton homotopy, :class:`jaxanm.ANM`).  ``max_terms``: the most path
+    coefficients :meth:`next` will be given (p - 1 for an ANM series of order p), so that the
+    compiled program has room for them from the start; None: the room doubles when needed.
     """
 
     def __init__(self, functions: "AffineFunctions", x0, args: tuple, f0=None, lookahead: bool = False,
                  max_terms: int | None = None):
-        self._fn, self._x0, self._args = functions, x0, args
-        self._lookahead = bool(lookahead)
-        self._max_length = None if max_terms is None else max_terms + self._lookahead
-        self._f0 = functions.frontier(x0, *args) if f0 is None else f0
-        self._stack = None  # frontier coefficients, one (length, *shape) array per frontier value
+        self._fn, self._lookahead = functions, bool(lookahead)
+        self._x0, self._args = x0, args
+        size = orders_kept(max_terms, self._lookahead)
+        functions.prepare(x0, args, size, self._lookahead)
+        first, self._values = functions.start(self._x0, *self._args)[1] if f0 is None else f0
+        self._orders = [first] + [functions.zeros] * (size - 1)
         self._known = 0
 
     def next(self, c) -> np.ndarray:
         """Append the path coefficient ``c_k`` and return the coefficient ``f_k`` (or, with
         ``lookahead``, ``f_{k+1}`` for ``c_{k+1} = c_k``) as a host array."""
-        length = jet_length(self._known + 1 + self._lookahead, self._max_length)
-        if self._stack is None or self._stack[0].shape[0] < length:
-            # room for the whole series when its length is known, else for twice this jet
-            capacity = max(length, self._max_length or 2 * length)
-            self._stack = self._fn.grown(self._f0, self._stack, capacity)
-        fk, self._stack = self._fn.truncated[self._lookahead](
-            length, self._x0, c, self._f0, self._stack, np.int32(self._known), *self._args)
-        self._known += 1
+        k = self._known + 1
+        if k + self._lookahead >= len(self._orders):  # no room: twice as much (a new compilation)
+            self._orders += [self._fn.zeros] * len(self._orders)
+        fk, self._orders[k] = self._fn.order(self._lookahead, len(self._orders))(
+            np.int32(k), self._x0, c, self._orders, mirrored(self._orders, self._fn.zeros, k), self._values,
+            *self._args)
+        self._known = k
         return np.asarray(fk)
+
+
+START_ORDERS = 8
+"""Orders kept room for when a path does not say how many terms it will take (the room
+doubles when they are used up)."""
+
+
+def orders_kept(max_terms: int | None, lookahead: bool) -> int:
+    """The orders a path of at most ``max_terms`` path coefficients keeps room for: 0 ..
+    max_terms, one more with ``lookahead`` (:data:`START_ORDERS` when not known)."""
+    return START_ORDERS if max_terms is None else max_terms + 1 + int(lookahead)
 
 
 class AffineFunctions:
     """The compiled pieces of :class:`AffinePath` for one function and one argument layout
     (``x0`` and ``args`` are examples: shapes and pytree structure matter, not values).
 
-    ``truncated[lookahead]`` is compiled once per jet length (:func:`jet_length`, a static
-    argument): the known frontier coefficients come stacked in arrays allocated once per
-    series, the new one is written at a traced position, the jet reads the first ``length``
-    of them, and the coefficient wanted is read at a traced index, so every order that falls
-    on one rung of the ladder reuses one compilation.  A coefficient of order m
-    depends on the terms up to m only, so the zero (or stale) terms above it change nothing.
+    :meth:`start` (``(x0, *args) -> (f(x0), (orders[0], values))``) is compiled once, and
+    :meth:`order` (``(k, x0, c_k, orders, mirror, values, *args) -> (f_k, orders[k])``, the
+    arguments of :meth:`jaxanm._taylor.TaylorProgram.order`) once per number of orders kept,
+    whatever the order k: it is an argument.  :meth:`prepare` compiles both in the background
+    as soon as a path's layout is known (:mod:`jaxanm._compile_ahead`).  The split is the one
+    the sparse tangent makes (:func:`jaxanm._affine.split_affine` with the scalar factors in the
+    rest, cached): the residual is traced once for both.
     """
 
     def __init__(self, fun: Callable, x0, *args):
         from ._affine import split_affine
 
-        self.split = split = split_affine(fun, x0, *args)
+        self.split = split = split_affine(fun, x0, *args, scalar_factors_affine=False)
+        flat, tree = jax.tree_util.tree_flatten(args)
+        frontier = jax.eval_shape(split.linear, x0, *args)
+        rest = jax.make_jaxpr(lambda values, *leaves: split.rest(values, *jax.tree_util.tree_unflatten(tree, leaves)))
+        self.program = program = TaylorProgram(rest(frontier, *flat), split.n_frontier)
+        # the orders not known yet: one device buffer per group, never written (no compilation)
+        self.zeros = jax.device_put(program.zeros())
 
-        def rest_coefficients(length, f0, stack, *args):
-            """``[rest]_1..[rest]_length`` (stacked) from the frontier's ``f0`` and its stacked
-            coefficients (one ``(capacity, *shape)`` array per frontier value)."""
-            _, fs = jet.jet(lambda *F: split.rest(list(F), *args), tuple(f0),
-                            tuple([s[m] for m in range(length)] for s in stack), factorial_scaled=False)
-            return jnp.stack([jnp.broadcast_to(f, split.out_shape) for f in fs])
+        def start(x0, *args):
+            outs, first, values = program.start(split.linear(x0, *args), jax.tree_util.tree_leaves(args))
+            return jnp.broadcast_to(outs[0], split.out_shape), (first, values)
 
-        def new_term(x0, c, args):
-            return jax.jvp(lambda y: split.linear(y, *args), (x0,), (c,))[1]
+        self._start = jax.jit(start)
+        self._order = {lookahead: jax.jit(functools.partial(self._coefficient, lookahead))
+                       for lookahead in (False, True)}
+        self._compiling: dict = {}  # "start" or (orders kept, lookahead) -> its compilation ahead
 
-        def truncated(lookahead, length, x0, c, f0, stack, known, *args):
-            new = new_term(x0, c, args)
-            stack = [s.at[known].set(n) for s, n in zip(stack, new)]
-            terms = [s.at[known + 1].set(n) for s, n in zip(stack, new)] if lookahead else stack
-            return rest_coefficients(length, f0, terms, *args)[known + lookahead], stack
+    def prepare(self, x0, args: tuple, size: int, lookahead: bool) -> None:
+        """Start compiling, in the background, the start program for ``(x0, *args)`` and the
+        order program for ``size`` orders kept (once each)."""
+        if "start" not in self._compiling:
+            self._compiling["start"] = compile_ahead(self._start, x0, *args)
+        if (size, lookahead) not in self._compiling:
+            first = [jax.ShapeDtypeStruct((len(m), *shape), dtype) for (shape, dtype), m in self.program.history_groups]
+            values = [jax.ShapeDtypeStruct((len(m), *shape), dtype) for (shape, dtype), m in self.program.value_groups]
+            c = jax.ShapeDtypeStruct(np.shape(x0), np.float64)
+            self._compiling[(size, lookahead)] = compile_ahead(
+                self._order[lookahead], np.int32(1), x0, c, [first] * size, [first] * size, values, *args)
 
-        def grown(f0, stack, length):
-            zeros = [jnp.zeros((length,) + jnp.shape(f), jnp.result_type(f)) for f in f0]
-            if stack is None:
-                return zeros
-            return [z.at[:s.shape[0]].set(s) for z, s in zip(zeros, stack)]
+    def _ready(self, key) -> None:
+        """Wait for the compilation ahead of ``key``, if one is pending."""
+        if self._compiling.get(key) is not None:
+            wait(self._compiling[key])
+            self._compiling[key] = None
 
-        def residual_and_frontier(x, *args):
-            frontier = split.linear(x, *args)
-            return jnp.broadcast_to(split.rest(frontier, *args), split.out_shape), frontier
+    def start(self, x0, *args):
+        """``(f(x0), (orders[0], values))``: the function's value and the state a path starts from."""
+        self._ready("start")
+        return self._start(x0, *args)
 
-        self.frontier = jax.jit(split.linear)
-        # f(x0) and the frontier at x0 in one call: a series start needs both
-        self.residual_and_frontier = jax.jit(residual_and_frontier)
-        # indexed by ``lookahead`` (AffinePath)
-        self.truncated = {flag: jax.jit(functools.partial(truncated, flag), static_argnums=0)
-                          for flag in (False, True)}
-        self.grown = jax.jit(grown, static_argnums=2)
+    def _coefficient(self, lookahead, k, x0, c, orders, mirror, values, *args):
+        """``(f_k, orders[k])`` (``f_{k+1}`` along ``c_{k+1} = c_k`` with ``lookahead``)."""
+        leaves = jax.tree_util.tree_leaves(args)
+        new = jax.jvp(lambda y: self.split.linear(y, *args), (x0,), (c,))[1]
+        outs, order_k = self.program.order(k, new, orders, mirror, values, leaves)
+        if lookahead:  # order k + 1 along c_{k+1} = c_k, its coefficients not kept
+            orders = [o if m == 0 else [jnp.where(k == m, a, b) for a, b in zip(order_k, o)]
+                      for m, o in enumerate(orders)]
+            mirror = [mirror[0], order_k, *mirror[1:-1]]  # item j: orders[k + 1 - j]
+            outs, _ = self.program.order(k + 1, new, orders, mirror, values, leaves)
+        return jnp.broadcast_to(outs[0], self.split.out_shape), order_k
+
+    def order(self, lookahead: bool, size: int):
+        """The jitted ``(k, x0, c_k, orders, mirror, values, *args) -> (f_k, orders[k])``, for
+        ``size`` orders kept."""
+        self._ready((size, lookahead))
+        return self._order[lookahead]

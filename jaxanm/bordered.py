@@ -351,13 +351,13 @@ class PathSeries:
     :meth:`next` is given ``U_k``, it returns ``F_(k+1)``, the coefficient of ``a^(k+1)`` of R
     along the path truncated at k (so that order k + 1 reads ``R_U U_(k+1) = -F_(k+1)``).
 
-    The jets come from :class:`~jaxanm._series.AffinePath` (affine part outside jet, one
-    compilation per rung of its ladder, shared by every step of every branch with this
-    residual and shapes): with ``lookahead`` it returns the coefficient of order k + 1 along
-    the path with the provisional ``U_(k+1) = U_k``, which is ``F_(k+1) + R_U U_k``; the
-    linear term is taken off by a product with the assembled tangent (exact, whatever solved
-    for ``U_k``).  A residual that cannot be split gets a jet of the whole residual with a
-    zero last term, compiled per number of terms.
+    The coefficients come from :class:`~jaxanm._series.AffinePath` (the affine part by a linear
+    map, the rest by incremental Taylor arithmetic, one compilation for every order, shared by
+    every step of every branch with this residual and shapes): with ``lookahead`` it returns
+    the coefficient of order k + 1 along the path with the provisional ``U_(k+1) = U_k``, which
+    is ``F_(k+1) + R_U U_k``; the linear term is taken off by a product with the assembled
+    tangent (exact, whatever solved for ``U_k``).  A residual that cannot be split gets a jet of
+    the whole residual with a zero last term, compiled per number of terms.
     """
 
     def __init__(self, system: ExtendedSystem, point, max_terms: int):

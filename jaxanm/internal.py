@@ -15,8 +15,7 @@ core module imports this one (the facade points one way: from the subpackages in
 from ._checks import choice, flag, integer, positive, real
 from ._extras import MissingExtraError, missing_extra_message, require
 from ._factorization import Factorization, factorize, sparse_lu
-from ._problem import Problem
-from ._problem import _relative_change as relative_change
+from ._problem import Problem, relative_change
 from ._solver import make_solver, solver_kinds
 from ._x64 import entry_point
 

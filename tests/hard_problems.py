@@ -179,7 +179,7 @@ THERMO = {"effects": "inertia,viscous,softening,conduction,tool_conduction,dissi
 
 def impulsive_start(solver=None):
     """Quasi-static impulsive start at the paper's n and eps0 (ANM p=7 by default)."""
-    solver = solver or jaxanm.ANM(order=7, tol=1e-6)
+    solver = solver or jaxanm.ANM.paper(order=7, tol=1e-6)
     return _run_case(
         f"impulsive tool start, quasi-static ({type(solver).__name__})", lambda: _fsw_integrate(ISO, solver)
     )
@@ -189,7 +189,7 @@ def impulsive_start_inertia():
     """Impulsive start of the full thermo-mechanical model with inertia, one step of 1e-4 s (ANM p=7)."""
     return _run_case(
         "impulsive tool start, full physics, dt = 1e-4 (ANM)",
-        lambda: _fsw_integrate(THERMO, jaxanm.ANM(order=7, tol=1e-6), steps=1),
+        lambda: _fsw_integrate(THERMO, jaxanm.ANM.paper(order=7, tol=1e-6), steps=1),
     )
 
 
@@ -442,7 +442,7 @@ def forced_divergence():
     initial tangent cannot reach a = 1, K* is refactorised and the step advances by continuation."""
     return _run_case(
         "series forced to diverge: continuation (ANM p=7)",
-        lambda: _model_integrate(impulsive_cubic(5), jaxanm.ANM(order=7, tol=1e-8), 0.05, 1e-2),
+        lambda: _model_integrate(impulsive_cubic(5), jaxanm.ANM.paper(order=7, tol=1e-8), 0.05, 1e-2),
     )
 
 
@@ -453,7 +453,7 @@ def forced_halving(max_dt_halvings):
     that equation, ``|J^-1 (u^3 + u - F)|`` with ``J = 3u^2 + 1``, against ``tol |u|``.
     """
     residual, x0, params = impulsive_cubic(5)
-    solver = jaxanm.ANM(order=4, tol=1e-8, max_substeps=0)
+    solver = jaxanm.ANM.paper(order=4, tol=1e-8, max_substeps=0)
     forcing = np.linspace(50.0, 200.0, 5)  # as in tests/model_problems.py
 
     def go():
@@ -489,34 +489,35 @@ def order(p, problem="cubic"):
     """ANM of order p (tol 1e-12) for 5 steps of 1e-2 on the cubic relaxation or on heat_1d(8)."""
     prob = cubic_relaxation() if problem == "cubic" else heat_1d(8)
     return _run_case(
-        f"series order {p} ({problem})", lambda: _model_integrate(prob, jaxanm.ANM(order=p, tol=1e-12), 0.05, 1e-2)
+        f"series order {p} ({problem})",
+        lambda: _model_integrate(prob, jaxanm.ANM.paper(order=p, tol=1e-12), 0.05, 1e-2),
     )
 
 
 def order_1():
     """Order 1 is rejected: eq. 26 takes the 1/(p-1)-th root."""
-    return _run_case("series order 1", lambda: (jaxanm.ANM(order=1), None))
+    return _run_case("series order 1", lambda: (jaxanm.ANM.paper(order=1), None))
 
 
 CASES = {
     "impulsive": (True, impulsive_start),
     "impulsive_inertia": (False, impulsive_start_inertia),
     "n005_newton": (True, lambda: power_law(0.05, jaxanm.Newton(tol=1e-8))),
-    "n005_anm": (True, lambda: power_law(0.05, jaxanm.ANM(order=7, tol=1e-6))),
+    "n005_anm": (True, lambda: power_law(0.05, jaxanm.ANM.paper(order=7, tol=1e-6))),
     "n1_newton": (True, lambda: power_law(1.0, jaxanm.Newton(tol=1e-8))),
-    "n1_anm": (True, lambda: power_law(1.0, jaxanm.ANM(order=7, tol=1e-6))),
+    "n1_anm": (True, lambda: power_law(1.0, jaxanm.ANM.paper(order=7, tol=1e-6))),
     "eps0_newton100": (True, lambda: epsbar_zero(jaxanm.Newton(tol=1e-8, max_iter=100))),
     "eps0_newton_capped": (True, epsbar_zero_capped),
-    "eps0_anm": (False, lambda: epsbar_zero(jaxanm.ANM(order=7, tol=1e-6))),
+    "eps0_anm": (False, lambda: epsbar_zero(jaxanm.ANM.paper(order=7, tol=1e-6))),
     "penalty_newton": (True, lambda: penalty(1e8, jaxanm.Newton(tol=1e-8))),
-    "penalty_anm": (True, lambda: penalty(1e8, jaxanm.ANM(order=7, tol=1e-6))),
+    "penalty_anm": (True, lambda: penalty(1e8, jaxanm.ANM.paper(order=7, tol=1e-6))),
     "dt_1e-2": (True, lambda: time_step(1e-2, jaxanm.Newton(tol=1e-8))),
     "dt_1e-7": (True, lambda: time_step(1e-7, jaxanm.Newton(tol=1e-8))),
     "omega_200": (True, omega_200),
     "hot_softening": (True, hot_softening),
     "lagrangian_shear": (False, lagrangian_shear),
     "coincident_0.1": (True, lambda: near_coincident(0.1)),
-    "coincident_1e-6": (False, lambda: near_coincident(1e-6, jaxanm.ANM(order=7, tol=1e-6))),
+    "coincident_1e-6": (False, lambda: near_coincident(1e-6, jaxanm.ANM.paper(order=7, tol=1e-6))),
     "coincident_0": (True, lambda: near_coincident(0.0)),
     "conduction_2dr": (True, coarse_conduction),
     "conduction_2dr_stable": (False, lambda: coarse_conduction(STABLE_EDGE, "c = 0.3, half-cell edge rows")),

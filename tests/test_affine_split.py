@@ -1,4 +1,4 @@
-"""The affine split of a residual (jaxanm._affine) and the series built on it (series.AffinePath).
+"""The affine split of a residual (jaxanm._affine) and the series built on it (_series.AffinePath).
 
 References: the function itself (the split must reproduce it exactly, up to the order of the
 same floating-point operations) and ``taylor_coefficients``, a jet of the whole function,
@@ -13,7 +13,7 @@ import pytest
 
 import jaxanm
 from jaxanm._affine import split_affine
-from jaxanm._series import EXACT_TERMS, AffineFunctions, AffinePath, jet_length, taylor_coefficients
+from jaxanm._series import START_ORDERS, AffineFunctions, AffinePath, taylor_coefficients
 
 N, M = 30, 5
 RNG = np.random.default_rng(7)
@@ -64,36 +64,24 @@ def test_affine_path_coefficients_equal_the_jet_of_the_whole_residual():
             np.testing.assert_allclose(got, reference[k], rtol=0, atol=1e-12 * scale)
 
 
-# the same ladder, one more jet
-@pytest.mark.parametrize("lookahead", [False, pytest.param(True, marks=pytest.mark.slow)])
-def test_jets_padded_on_the_ladder_give_the_coefficients_of_exact_ones(lookahead):
-    # orders past EXACT_TERMS use jets padded with zero terms to the next rung (12 here, then
-    # the cap p - 1 = 13): a coefficient of order m depends on the path terms up to m only, so
-    # the padded jets must reproduce the whole-residual jet at every order, across the changes
-    # from exact to padded and from a rung to the cap
+@pytest.mark.parametrize("lookahead", [False, True])
+def test_long_paths_grow_and_keep_the_coefficients_of_the_whole_residual(lookahead):
+    # no max_terms: the kept orders start at START_ORDERS and double when used up (a new
+    # compilation at the same arguments); every coefficient, across the growth, must be the
+    # whole-residual jet's (with the provisional c_{k+1} = c_k for the lookahead)
     x = RNG.uniform(0.5, 1.5, N)
-    p = 14
+    p = START_ORDERS + 2
     terms = [RNG.standard_normal(N) * 0.5**k for k in range(1, p)]
     with jaxanm.float64():
-        path = AffinePath(AffineFunctions(stencil_residual, x, *ARGS), x, ARGS,
-                          lookahead=lookahead, max_terms=p - 1)
+        path = AffinePath(AffineFunctions(stencil_residual, x, *ARGS), x, ARGS, lookahead=lookahead)
         got = [path.next(c) for c in terms]
         if lookahead:  # f_{k+1} with the provisional c_{k+1} = c_k: one reference jet per k
             checked = {k: taylor_coefficients(stencil_residual, x, terms[:k] + terms[k - 1:k], *ARGS)[k + 1]
-                       for k in (EXACT_TERMS, EXACT_TERMS + 1, p - 1)}
+                       for k in (START_ORDERS - 2, p - 1)}  # before the growth (at k = 7) and after
         else:
             reference = taylor_coefficients(stencil_residual, x, terms, *ARGS)
             checked = {k: reference[k] for k in range(1, p)}
     for k, want in checked.items():
         # as above: the same arithmetic regrouped, a few roundings of the coefficient's largest
-        # term (the padding adds exact zeros)
+        # term
         np.testing.assert_allclose(got[k - 1], want, rtol=0, atol=1e-12 * np.abs(want).max())
-
-
-def test_jet_lengths_are_exact_then_a_capped_ladder():
-    # exact up to EXACT_TERMS, then geometric rungs, never shorter than asked, capped at the
-    # longest jet the series needs
-    assert [jet_length(k) for k in range(1, EXACT_TERMS + 1)] == list(range(1, EXACT_TERMS + 1))
-    assert [jet_length(k) for k in (9, 12, 13, 18, 19)] == [12, 12, 18, 18, 27]
-    assert jet_length(19, max_terms=20) == 20 and jet_length(13, max_terms=14) == 14
-    assert all(jet_length(k, 30) >= k for k in range(1, 31))

@@ -76,7 +76,7 @@ def test_the_series_from_rest_has_vanishing_last_coefficients():
 def test_series_with_a_vanishing_last_coefficient_is_not_accepted_unconverged(order):
     residual, x0, params = cubic_reaction_diffusion()
     tol = 1e-6
-    sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=0.1, dt=0.1, solver=jaxanm.ANM(order=order, tol=tol))
+    sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=0.1, dt=0.1, solver=jaxanm.ANM.paper(order=order, tol=tol))
     assert sol.stats.time_steps == 1 and sol.stats.dt_halvings == 0
     assert newton_distance_ratio(residual, params, sol, tol) <= CHECK_LIMIT
     # the false acceptance was caught and continued from, not accepted
@@ -87,7 +87,7 @@ def test_state_criterion_is_checked_too():
     residual, x0, params = cubic_reaction_diffusion()
     tol = 1e-6
     sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=0.5, dt=0.1,
-                           solver=jaxanm.ANM(order=5, tol=tol, criterion="state"))
+                           solver=jaxanm.ANM.paper(order=5, tol=tol, criterion="state"))
     # "state" promises tol |x| per step, a looser yardstick than tol |x - x_old|
     with jaxanm.float64():
         for k in range(1, len(sol.ts)):
@@ -103,16 +103,16 @@ def test_a_rejected_series_without_continuation_is_a_named_failure():
     residual, x0, params = cubic_reaction_diffusion()
     with pytest.raises(jaxanm.StepFailure) as info:
         jaxanm.integrate(residual, x0, params, t0=0.0, t1=0.1, dt=0.1,
-                         solver=jaxanm.ANM(order=3, tol=1e-6, max_substeps=0), max_dt_halvings=2)
+                         solver=jaxanm.ANM.paper(order=3, tol=1e-6, max_substeps=0), max_dt_halvings=2)
     err = info.value
     assert "misses the promised accuracy" in str(err) and err.step == 1 and err.amax > 1
     assert err.stats.dt_halvings == 2
 
 
 @pytest.mark.parametrize("make, solver, t1", [
-    (heat_1d, jaxanm.ANM(order=7, tol=1e-8), 1.0),
-    (heat_1d, jaxanm.ANM(order=5, tol=1e-8, criterion="state"), 1.0),
-    (impulsive_cubic, jaxanm.ANM(order=7, tol=1e-8), 0.05),
+    (heat_1d, jaxanm.ANM.paper(order=7, tol=1e-8), 1.0),
+    (heat_1d, jaxanm.ANM.paper(order=5, tol=1e-8, criterion="state"), 1.0),
+    (impulsive_cubic, jaxanm.ANM.paper(order=7, tol=1e-8), 0.05),
 ], ids=["heat_1d-p7", "heat_1d-p5-state", "impulsive-p7"])
 def test_the_check_costs_no_factorisation_where_the_series_is_fine(make, solver, t1, monkeypatch):
     """Where eq. 26 tells the truth, the end-point check changes nothing: same factorisations,
@@ -123,7 +123,7 @@ def test_the_check_costs_no_factorisation_where_the_series_is_fine(make, solver,
     checked = jaxanm.integrate(residual, x0, params, **kw)
     # the solver as it was before the check: every series with a_max >= 1 accepted unseen
     monkeypatch.setattr(jaxanm._solver.anm._ANMStep, "_end_point_check",
-                        lambda self, *args: (0.0, 0.0, None))
+                        lambda self, *args: (0.0, 0.0, None, None))
     unchecked = jaxanm.integrate(residual, x0, params, **kw)
     a, b = checked.stats, unchecked.stats
     assert (a.factorizations, a.substeps, a.series_orders, a.dt_halvings) == \

@@ -40,9 +40,9 @@ def test_adaptive_steps_solve_each_step_to_the_promised_accuracy(criterion):
     residual, x0, params = cubic_reaction_diffusion()
     tol, p = 1e-6, 8
     kw = dict(t0=0.0, t1=0.5, dt=0.02)
-    adaptive = jaxanm.integrate(residual, x0, params, solver=jaxanm.ANM(order=p, tol=tol, criterion=criterion,
-                                                                       adaptive=True), **kw)
-    fixed = jaxanm.integrate(residual, x0, params, solver=jaxanm.ANM(order=p, tol=tol, criterion=criterion), **kw)
+    adaptive = jaxanm.integrate(residual, x0, params, solver=jaxanm.ANM.paper(order=p, tol=tol,
+                                                                             criterion=criterion, adaptive=True), **kw)
+    fixed = jaxanm.integrate(residual, x0, params, solver=jaxanm.ANM.paper(order=p, tol=tol, criterion=criterion), **kw)
     st = adaptive.stats
     assert len(st.orders) == len(st.amax) == st.time_steps  # one accepted series per step
     assert all(2 <= j <= p for j in st.orders) and min(st.orders) < p  # it did adapt

@@ -113,9 +113,9 @@ def test_newton_homotopy_solves_each_step_to_the_promised_accuracy(adaptive):
     residual, x0, params = cubic_reaction_diffusion()
     tol, p = 1e-6, 8
     kw = dict(t0=0.0, t1=0.5, dt=0.02)
-    newton = jaxanm.integrate(residual, x0, params, solver=jaxanm.ANM(order=p, tol=tol, adaptive=adaptive,
-                                                                     homotopy="newton"), **kw)
-    convex = jaxanm.integrate(residual, x0, params, solver=jaxanm.ANM(order=p, tol=tol, adaptive=adaptive), **kw)
+    newton = jaxanm.integrate(residual, x0, params, solver=jaxanm.ANM.paper(order=p, tol=tol, adaptive=adaptive,
+                                                                           homotopy="newton"), **kw)
+    convex = jaxanm.integrate(residual, x0, params, solver=jaxanm.ANM.paper(order=p, tol=tol, adaptive=adaptive), **kw)
     assert newton_distance_ratio(residual, params, newton, tol) <= CHECK_LIMIT
     scale = np.abs(convex.xs).max()
     assert np.abs(newton.xs - convex.xs).max() <= 2 * CHECK_LIMIT * tol * scale * len(convex.ts)

@@ -38,8 +38,8 @@ def test_large_steps_accepted_through_pade_solve_the_steps_with_fewer_factorisat
     ``CHECK_LIMIT tol sum_k |x_k - x_{k-1}|`` on Newton's states (Newton at tol 1e-12 is exact
     to that scale)."""
     residual, x0, params = make()
-    plain = _run(make, jaxanm.ANM(order=order, tol=TOL, criterion=criterion), dt)
-    pade = _run(make, jaxanm.ANM(order=order, tol=TOL, criterion=criterion, pade=True), dt)
+    plain = _run(make, jaxanm.ANM.paper(order=order, tol=TOL, criterion=criterion), dt)
+    pade = _run(make, jaxanm.ANM.paper(order=order, tol=TOL, criterion=criterion, pade=True), dt)
     newton = _run(make, jaxanm.Newton(tol=1e-12), dt)
     a, b = pade.stats, plain.stats
     assert a.pade_accepted >= 1 and b.pade_accepted == 0
@@ -59,8 +59,8 @@ def test_large_steps_accepted_through_pade_solve_the_steps_with_fewer_factorisat
 def test_pade_costs_no_factorisation(make, dt, order):
     """Where the plain series does well, the option adds no factorisation, sub-step or dt halving
     (it is only tried on series the plain criterion refuses)."""
-    plain = _run(make, jaxanm.ANM(order=order, tol=TOL), dt)
-    pade = _run(make, jaxanm.ANM(order=order, tol=TOL, pade=True), dt)
+    plain = _run(make, jaxanm.ANM.paper(order=order, tol=TOL), dt)
+    pade = _run(make, jaxanm.ANM.paper(order=order, tol=TOL, pade=True), dt)
     a, b = pade.stats, plain.stats
     assert a.factorizations <= b.factorizations and a.substeps <= b.substeps and a.dt_halvings <= b.dt_halvings
     assert a.time_steps == b.time_steps
@@ -78,7 +78,7 @@ def test_a_pade_end_point_that_misses_is_not_accepted(monkeypatch):
         return inc + 1e-3 * np.abs(inc).max() if a == 1.0 else inc
 
     monkeypatch.setattr(jaxanm._pade, "evaluate", spoiled)
-    sol = _run(bratu_1d, jaxanm.ANM(order=10, tol=TOL, pade=True), 0.5)
+    sol = _run(bratu_1d, jaxanm.ANM.paper(order=10, tol=TOL, pade=True), 0.5)
     assert sol.stats.pade_accepted == 0
     assert newton_distance_ratio(residual, params, sol, TOL) <= CHECK_LIMIT
 
@@ -93,7 +93,7 @@ def test_adaptive_tries_pade_at_the_maximum_order_only(monkeypatch):
         return pade_range(self, coeffs, d_s)
 
     monkeypatch.setattr(jaxanm._solver.anm._ANMStep, "_pade_range", recorded)
-    sol = _run(bratu_1d, jaxanm.ANM(order=10, tol=TOL, adaptive=True, pade=True), 0.5)
+    sol = _run(bratu_1d, jaxanm.ANM.paper(order=10, tol=TOL, adaptive=True, pade=True), 0.5)
     assert calls and set(calls) == {10} and sol.stats.pade_accepted >= 1
     assert min(sol.stats.orders) < 10  # the lower orders still stop early where the series suffices
 

@@ -278,10 +278,6 @@ def test_the_cycle_finder_finds_a_cycle(tmp_path):
 
 
 PRIVATE_IMPORTS_TO_MOVE = {
-    ("jaxanm/internal.py", "_relative_change"):
-        "_problem.py is being rewritten (series): rename it relative_change there and import that",
-    ("jaxanm/_solver/newton.py", "_relative_change"):
-        "_solver/ and _problem.py are being rewritten (series): import relative_change once renamed",
     ("jaxanm/fsw/scene.py", "_check"):
         "fsw/scene*.py are being rewritten (weld): the scene's value checks become jaxanm._checks calls",
     ("jaxanm/fsw/scene.py", "_as_str"): "as _check (weld): a public converter of scene_sections",
@@ -362,8 +358,6 @@ def test_the_core_does_not_import_the_facade():
 CHECKS = "jaxanm._checks"
 INLINE_CHECKS_TO_MOVE = {
     "jaxanm/_run_inputs.py": (1, "sparse rewrites it: t0, t1, dt by real()"),
-    "jaxanm/_solver/anm.py": (1, "series rewrites it: ANM.order by integer(), as check_count does"),
-    "jaxanm/_solver/newton.py": (1, "series rewrites it: ModifiedNewton.max_rate by real()"),
     "jaxanm/_step_control.py": (2, "schemes rewrites it: the controller's tolerances and bounds by real()"),
     "jaxanm/fsw/scene_sections.py": (2, "weld rewrites it: the scene converters' real and integer checks"),
     "jaxanm/ida.py": (5, "schemes rewrites it: t0, rtol, h0, ic_dt, max_steps"),

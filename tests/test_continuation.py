@@ -11,11 +11,10 @@ Two problems with known branches and limit points:
 - the shallow two-bar (von Mises) truss, whose snap-through path is derived in
   :func:`truss_load`.
 
-Jets are compiled once per residual and shape and per rung of the series' length ladder
+The series program is compiled once per residual, shape and number of orders kept
 (:mod:`jaxanm._series`): the branches are built once per module (fixtures) and the series order
-is 8 (rungs 2..8), which keeps the file's compilation to a few seconds; the default order 15
-adds two longer rungs and changes nothing tested here (its agreement is the benchmark's,
-``benchmarks/continuation.py``).
+is 8, which keeps the file's compilation to a few seconds; the default order 15 changes
+nothing tested here (its agreement is the benchmark's, ``benchmarks/continuation.py``).
 """
 
 from __future__ import annotations

@@ -50,7 +50,7 @@ def test_tighter_anm_tolerance_gets_closer_to_the_exact_step_solution():
     problem = heat_1d()
     ref = _run(problem, jaxanm.Newton(tol=1e-12), t1=0.2).xs
     path = np.linalg.norm(np.diff(ref, axis=0), axis=1).sum()
-    runs = [_run(problem, jaxanm.ANM(order=7, tol=tol), t1=0.2) for tol in (1e-8, 1e-10)]
+    runs = [_run(problem, jaxanm.ANM.paper(order=7, tol=tol), t1=0.2) for tol in (1e-8, 1e-10)]
     assert 1 < runs[0].stats.factorizations < runs[1].stats.factorizations  # different series
     errs = [np.abs(run.xs - ref).max() for run in runs]
     for err, tol in zip(errs, (1e-8, 1e-10)):
@@ -113,8 +113,8 @@ def test_state_criterion_bounds_the_error_by_tol_times_the_state():
     problem = heat_1d()
     tol = 1e-8
     ref = _run(problem, jaxanm.Newton(tol=1e-13)).xs[-1]
-    by_increment = _run(problem, jaxanm.ANM(order=5, tol=tol))
-    by_state = _run(problem, jaxanm.ANM(order=5, tol=tol, criterion="state"))
+    by_increment = _run(problem, jaxanm.ANM.paper(order=5, tol=tol))
+    by_state = _run(problem, jaxanm.ANM.paper(order=5, tol=tol, criterion="state"))
     assert np.abs(by_state.xs[-1] - ref).max() < 100 * tol * np.linalg.norm(ref)
     assert by_state.stats.factorizations <= by_increment.stats.factorizations
     assert by_state.stats.series_orders < by_increment.stats.series_orders
@@ -122,7 +122,7 @@ def test_state_criterion_bounds_the_error_by_tol_times_the_state():
 
 def test_impulsive_start_uses_in_step_continuation_and_converges():
     problem = impulsive_cubic()
-    anm = _run(problem, jaxanm.ANM(order=7, tol=1e-8), t1=0.05)
+    anm = _run(problem, jaxanm.ANM.paper(order=7, tol=1e-8), t1=0.05)
     newton = _run(problem, jaxanm.Newton(tol=1e-12), t1=0.05)
     assert anm.stats.substeps > 0
     assert anm.stats.factorizations > 1
@@ -176,7 +176,7 @@ def test_fixed_steps_halve_a_failed_step_into_halves_of_one_recorded_step(contro
 
 def test_failed_step_is_halved_then_reports_step_time_amax():
     problem = impulsive_cubic()
-    strict = jaxanm.ANM(order=4, tol=1e-8, max_substeps=0)
+    strict = jaxanm.ANM.paper(order=4, tol=1e-8, max_substeps=0)
     sol = _run(problem, strict, t1=0.02, max_dt_halvings=30)
     assert sol.stats.dt_halvings > 0 and np.all(np.isfinite(sol.xs))
     with pytest.raises(jaxanm.StepFailure) as info:

@@ -48,8 +48,8 @@ def _source_jump():
 
 
 @pytest.mark.parametrize("problem, solver", [
-    (_source_jump, jaxanm.ANM(order=5, tol=1e-8)),
-    (impulsive_cubic, jaxanm.ANM(order=7, tol=1e-8)),
+    (_source_jump, jaxanm.ANM.paper(order=5, tol=1e-8)),  # the paper's: a stale K* is replaced
+    (impulsive_cubic, jaxanm.ANM.paper(order=7, tol=1e-8)),
     (impulsive_cubic, jaxanm.ModifiedNewton(tol=1e-10)),
     (heat_1d, jaxanm.Newton(tol=1e-10)),
 ], ids=["anm-stale", "anm-substeps", "modified-newton", "newton"])
@@ -81,7 +81,7 @@ def _stale_kstar_start():
     """A state of the ANM on ``_source_jump`` whose K* goes stale at the next step (the source
     jumps), and that step's arguments."""
     residual, x0, params = _source_jump()
-    solver = jaxanm.ANM(order=5, tol=1e-8)
+    solver = jaxanm.ANM.paper(order=5, tol=1e-8)  # the paper's: a stale K* is replaced
     problem = Problem(residual, np.ones(x0.size), Stats(), "dense", None)
     dt = np.float64(0.01)
     with jaxanm.float64():

@@ -81,8 +81,8 @@ def test_overrides_parse_strings_and_validate():
 def test_solver_switches_reach_the_anm_options():
     """``solver.adaptive`` and ``solver.pade`` (TOML booleans, or true/false strings from --set)."""
     s = load_scene("fsw_small")
-    assert s.solver.make() == jaxanm.ANM(order=s.solver.order, tol=s.solver.tol, criterion=s.solver.criterion,
-                                         max_substeps=s.solver.max_substeps)
+    assert s.solver.make() == jaxanm.ANM.paper(order=s.solver.order, tol=s.solver.tol, criterion=s.solver.criterion,
+                                               max_substeps=s.solver.max_substeps, max_rate=s.solver.max_rate)
     t = s.with_overrides({"solver.pade": "true", "solver.adaptive": "True"})
     assert t.solver.pade is True and t.solver.adaptive is True
     assert t.solver.make().pade is True and t.solver.make().adaptive is True

@@ -146,8 +146,8 @@ def test_make_solver_refuses_an_unknown_kind_or_option_naming_what_it_knows():
     ("anm", {"adaptive": "yes"}, "ANM.adaptive must be True or False"),
     ("newton", {"max_iter": 0}, "Newton.max_iter must be an integer >= 1"),
     ("newton", {"tol": 1.5}, r"Newton.tol must be a number in \(0, 1\)"),
-    ("mnewton", {"max_rate": 1.0}, r"ModifiedNewton.max_rate must be a float in \(0, 1\)"),
-    ("mnewton", {"max_rate": "0.5"}, r"ModifiedNewton.max_rate must be a float in \(0, 1\)"),
+    ("mnewton", {"max_rate": 1.0}, r"ModifiedNewton.max_rate must be a number in \(0, 1\)"),
+    ("mnewton", {"max_rate": "0.5"}, r"ModifiedNewton.max_rate must be a number in \(0, 1\)"),
     ("mnewton", {"max_iter": 2.5}, "ModifiedNewton.max_iter must be an integer >= 1"),
 ])
 def test_each_solver_validates_its_own_options(kind, options, message):

@@ -3,13 +3,17 @@
 K* holds the 1/dt of the time derivative, so a controller that changes dt at every step keeps
 every reused K* stale.  The controller holds the step size while its proposal is within
 ``hold`` of it, and the run drops a K* whose step size is more than ``refactor_ratio`` away
-from the next step's (jaxanm.StepController, docs/notes/adaptive_time_steps.md).  Measured here:
-the ANM's factorisations against modified Newton's under the same controller, and the error
-at the end of the span against the problem's reference.
+from the next step's (jaxanm.StepController, docs/notes/adaptive_time_steps.md).  The ANM's
+defaults keep a stale K* while its series contract, as modified Newton keeps its Jacobian
+(docs/method/defaults.md).  Measured here: the ANM's factorisations against modified Newton's
+under the same controller, and the error at the end of the span against the problem's
+reference.
 
 Tolerances of the assertions, and why:
 
-- factorisations: at most 3x modified Newton's, the target the change was made for;
+- factorisations: at most 3x modified Newton's for the controller's change (the target it was
+  made for), at most 1.5x for the ANM's defaults against ``ModifiedNewton(tol=1e-8)`` (the
+  target they were chosen for);
 - error against the reference, in the controller's own weighted RMS norm (a local error of 1
   is the tolerance of one step): at most the number of steps, i.e. the sum of the local errors
   the controller allowed, which bounds the global error of a problem that does not amplify
@@ -33,9 +37,11 @@ from jaxanm.errors import InputError
 
 CONTROLLER = jaxanm.StepController(rtol=1e-4, atol=1e-8)
 BEFORE = jaxanm.StepController(rtol=1e-4, atol=1e-8, hold=1.0, refactor_ratio=math.inf)  # the controller as it was
-ANM_UNDER_CONTROLLER = jaxanm.ANM(adaptive=True, homotopy="newton", criterion="state")
-ANM_DEFAULT = jaxanm.ANM(adaptive=True)
+ANM_UNDER_CONTROLLER = jaxanm.ANM(adaptive=True, homotopy="newton", criterion="state", max_rate=0.0)
+ANM_ADAPTIVE_PAPER = jaxanm.ANM.paper(adaptive=True)  # the paper's ANM, order-adaptive
 MNEWTON = jaxanm.ModifiedNewton()
+DEFAULTS = {"defaults": jaxanm.ANM(), "order 7, tol 1e-8": jaxanm.ANM(order=7, tol=1e-8)}
+MNEWTON_8 = jaxanm.ModifiedNewton(tol=1e-8)
 
 
 def _run(p, solver, controller=CONTROLLER):
@@ -71,12 +77,30 @@ def test_robertson_anm_factorises_like_modified_newton():
     over 3x as often as modified Newton; with held step sizes it factorises at most 3x as
     often, at the error of modified Newton."""
     p = stiff_problems.problem("robertson")
-    before_anm, before_mn = _run(p, ANM_DEFAULT, BEFORE).stats, _run(p, MNEWTON, BEFORE).stats
+    before_anm, before_mn = _run(p, ANM_ADAPTIVE_PAPER, BEFORE).stats, _run(p, MNEWTON, BEFORE).stats
     assert before_anm.factorizations > 3 * before_mn.factorizations  # the problem this fixes
     mn = _run(p, MNEWTON)
-    anm = _run(p, ANM_DEFAULT)
+    anm = _run(p, ANM_ADAPTIVE_PAPER)
     assert anm.stats.factorizations <= 3 * mn.stats.factorizations
     _same_error(p, anm, mn)
+
+
+@pytest.mark.parametrize("name", ["robertson", pytest.param("hires", marks=pytest.mark.slow)])
+def test_the_paper_anm_refactorises_where_modified_newton_iterates_and_the_defaults_do_not(name):
+    """Under the controller, a K* made at a step size within ``refactor_ratio`` of the step's
+    leaves a contraction of up to ``|1 - h_K / h|`` on the stiff components: modified Newton
+    iterates on (up to ``max_rate`` per iteration), while the paper's fixed-order series from
+    that K* cannot reach eq. 26's tolerance in p - 1 orders and is refactorised.  The
+    defaults go on from a contracting series' end point, and factorise at most 1.5x as often
+    as modified Newton, at its error."""
+    p = stiff_problems.problem(name)
+    mn = _run(p, MNEWTON_8)
+    paper = _run(p, jaxanm.ANM.paper(order=7, tol=1e-8)).stats
+    assert paper.factorizations > 3 * mn.stats.factorizations  # the cause
+    for solver in DEFAULTS.values():
+        anm = _run(p, solver)
+        assert anm.stats.factorizations <= 1.5 * mn.stats.factorizations
+        _same_error(p, anm, mn)
 
 
 def test_van_der_pol_anm_factorises_like_modified_newton_and_no_run_stalls():
@@ -114,12 +138,17 @@ def _same_error(p, anm, mn, controller=CONTROLLER):
 @pytest.mark.parametrize("name", ["hires", "orego", "vanderpol"])
 def test_the_other_stiff_problems(name):
     """HIRES, OREGO and van der Pol over [0, 3000] (the benchmark's spans, a minute or more
-    each): the same bounds as above."""
+    each): the same bounds as above, for the controller's change and for the ANM's defaults."""
     p = stiff_problems.problem(name)
     mn = _run(p, MNEWTON)
     anm = _run(p, ANM_UNDER_CONTROLLER)
     assert anm.stats.factorizations <= 3 * mn.stats.factorizations
     _same_error(p, anm, mn)
+    mn = _run(p, MNEWTON_8)
+    for solver in DEFAULTS.values():
+        anm = _run(p, solver)
+        assert anm.stats.factorizations <= 1.5 * mn.stats.factorizations
+        _same_error(p, anm, mn)
 
 
 @pytest.mark.slow

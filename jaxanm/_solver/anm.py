@@ -7,21 +7,46 @@ The method, its acceptance test and its homotopies are explained in ``docs/metho
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import numpy as np
 
 from .. import _pade
-from .._acceptance import CHECK_LIMIT, CRITERIA, evaluate_series, promised_accuracy, reference_state, validity_range
+from .._acceptance import (
+    CHECK_LIMIT,
+    CRITERIA,
+    evaluate_series,
+    promised_accuracy,
+    range_of_norms,
+    reference_state,
+    validity_range,
+)
+from .._checks import integer, real
 from .._problem import SeriesPath
 from ..errors import InputError, NonFiniteError, StepFailure
 from .base import Attempt, AttemptSolver, check_count, check_flag, check_tol
+
+
+class _Start(NamedTuple):
+    """Where a series of a step starts: ``d_s``, the residual there when already evaluated (and
+    the series path from there, when already started), the first coefficient ``-K*^-1 R(d_s)``
+    when already solved with the K* kept (None: to compute); ``refactor``: K* is refactorised
+    first (at ``d_s``); ``substep``: a continuation sub-step (counted)."""
+
+    d_s: np.ndarray
+    residual: np.ndarray | None = None
+    c_1: np.ndarray | None = None
+    refactor: bool = False
+    substep: bool = False
+    path: SeriesPath | None = None
 
 
 class _ANMStep(Attempt):
     """One time step of the :class:`ANM` (``opts``): series, continuation sub-steps, acceptance.
 
     ``fact`` is the K* it works with: the state's, replaced (:meth:`drop_factorization`: the
-    next series factorises at its start point) when a series from a stale K* falls short.
+    next series factorises at its start point) when a series from a stale K* falls short and
+    does not contract (``max_rate``).
     """
 
     opts: "ANM"
@@ -29,88 +54,123 @@ class _ANMStep(Attempt):
     def run(self, step: int, x_old, t, dt, params, start=None):
         """The accepted state and the residual there (None when not evaluated): ``(x, R(x))``;
         the homotopy starts at ``start`` (default ``x_old``)."""
-        P, p, st = self.problem, self.opts.order, self.problem.stats
+        P, st = self.problem, self.problem.stats
         args = (x_old, t, dt, params)
-        d_s = np.array(x_old if start is None else start, dtype=np.float64)
-        fresh = False
+        start = _Start(np.array(x_old if start is None else start, dtype=np.float64))
         substeps = 0
         amax = None  # of the previous series in this step (reported if a later one fails)
-        r_next = None  # R at the next series' start when already known (a sub-step to a checked end point)
         while True:
-            # the residual coefficient that order j needs depends on c_1 .. c_{j-1} only (and, for
-            # the Newton homotopy, on the provisional c_j = c_{j-1}): each jet is truncated there
-            path = SeriesPath(P, d_s, args, lookahead=self.opts.homotopy == "newton", max_terms=p - 1)
-            r0 = path.start_residual() if r_next is None else r_next
-            r_next = None
+            d_s = start.d_s
+            if start.refactor:
+                self.drop_factorization()
+            if start.substep:
+                substeps += 1
+                st.substeps += 1
+            path = self._path(d_s, args) if start.path is None else start.path
+            r0 = path.start_residual() if start.residual is None else start.residual
             r0_norm = float(np.max(np.abs(r0)))
             if not np.isfinite(r0_norm):
                 raise NonFiniteError("residual at the start of the series is not finite", step=step, t=t,
                                      amax=amax, residual_norm=r0_norm)
-            if self.fact is None:
+            fresh = self.fact is None
+            if fresh:
                 self.fact = P.factorize_in_step(step, d_s, *args, amax=amax, residual_norm=r0_norm)
-                fresh = True
-            coeffs, accepted = self._series(path, r0, d_s, args)
+            coeffs, accepted = self._series(path, r0, None if fresh else start.c_1, d_s, args)
             if accepted is not None:
                 return accepted
             amax = self._validity_range(coeffs, d_s)
+            failure = dict(step=step, t=t, amax=amax, residual_norm=r0_norm)
             if amax >= 1.0:
-                d_end = d_s + coeffs.sum(axis=0)
-                check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], *args)
-                if check <= CHECK_LIMIT:
-                    return self._accepted(d_end, amax, p, r_end)
-                # the series claimed a = 1 but its end point is not converged (e.g. a last
-                # coefficient that vanishes by parity): not an accepted step
-                if not fresh:  # stale K*: refactorise at the start point and redo the series
-                    self.drop_factorization()
-                    continue
-                if substeps >= self.opts.max_substeps:
-                    raise StepFailure(f"series from a fresh K* claims a = 1 (a_max = {amax:.3g}) but its end point "
-                                      f"misses the promised accuracy {check:.3g} times, after {substeps} "
-                                      f"continuation sub-steps (max_substeps = {self.opts.max_substeps})",
-                                      step=step, t=t, amax=amax, residual_norm=r0_norm)
-                substeps += 1
-                st.substeps += 1
-                # continuation sub-step: to the end point when it is closer to the solution than
-                # the start (Newton distance by K*), else half-way along the series
-                if distance < P.norm(coeffs[0]):
-                    d_s, r_next = d_end, r_end
-                else:
-                    d_s = d_s + evaluate_series(coeffs, 0.5)
-                fresh = False
-                continue
-            approx, a_pade, pade_end = self._try_pade(coeffs, d_s, args)
-            if pade_end is not None and pade_end[1] <= CHECK_LIMIT:
-                st.pade_accepted += 1
-                return self._accepted(pade_end[0], a_pade, p, pade_end[3])
-            if not fresh:  # stale K*: refactorise at the current point and redo the series
-                self.drop_factorization()
-                continue
-            if not np.all(np.isfinite(coeffs)):
-                raise NonFiniteError("series coefficients are not finite with a fresh K*", step=step, t=t,
-                                     amax=amax, residual_norm=r0_norm)
-            if substeps >= self.opts.max_substeps or max(amax, a_pade) < 1e-12:
-                raise StepFailure(f"series from a fresh K* cannot reach a = 1 after {substeps} "
-                                  f"continuation sub-steps (max_substeps = {self.opts.max_substeps})",
-                                  step=step, t=t, amax=amax, residual_norm=r0_norm)
-            substeps += 1
-            st.substeps += 1  # counted when taken (a refused sub-step is a failure, not a sub-step)
-            d_s, r_next = self._continuation_point(coeffs, d_s, amax, approx, a_pade, pade_end)
-            fresh = False
+                start = self._claimed(coeffs, d_s, args, fresh, substeps, failure)
+            else:
+                start = self._short(coeffs, d_s, args, fresh, substeps, failure)
+            if isinstance(start, tuple) and not isinstance(start, _Start):
+                return start  # accepted: (x, R(x))
 
-    def _series(self, path: SeriesPath, r0, d_s, args):
-        """The series' coefficients ``c_1 .. c_p`` by K*: ``(coeffs, None)``, or, order-adaptive,
-        ``(None, (x, R(x)))`` when a truncated series is accepted on the way."""
-        p = self.opts.order
+    def _claimed(self, coeffs, d_s, args, fresh: bool, substeps: int, failure: dict):
+        """After a series whose a_max reaches 1: ``(x, R(x))`` when its end point passes the
+        check, else where the next series starts (a :class:`_Start`)."""
+        P, p = self.problem, self.opts.order
+        d_end = d_s + coeffs.sum(axis=0)
+        check, distance, r_end, correction = self._end_point_check(d_end, d_s, coeffs[0], *args)
+        if check <= CHECK_LIMIT:
+            return self._accepted(d_end, failure["amax"], p, r_end)
+        # the series claimed a = 1 but its end point is not converged (e.g. a last coefficient
+        # that vanishes by parity): not an accepted step
+        if not fresh:  # stale K*: refactorise at the start point and redo the series
+            return _Start(d_s, refactor=True)
+        if substeps >= self.opts.max_substeps:
+            raise StepFailure(f"series from a fresh K* claims a = 1 (a_max = {failure['amax']:.3g}) but its end "
+                              f"point misses the promised accuracy {check:.3g} times, after {substeps} continuation "
+                              f"sub-steps (max_substeps = {self.opts.max_substeps})", **failure)
+        # continuation sub-step: to the end point when it is closer to the solution than the
+        # start (Newton distance by K*), else half-way along the series
+        if distance < P.norm(coeffs[0]):
+            return _Start(d_end, r_end, -correction, substep=True)
+        return _Start(d_s + evaluate_series(coeffs, 0.5), substep=True)
+
+    def _short(self, coeffs, d_s, args, fresh: bool, substeps: int, failure: dict):
+        """After a series whose a_max stays below 1: ``(x, R(x))`` when its Padé approximant is
+        accepted, else where the next series starts (a :class:`_Start`)."""
+        approx, a_pade, pade_end = self._try_pade(coeffs, d_s, args)
+        if pade_end is not None and pade_end[1] <= CHECK_LIMIT:
+            self.problem.stats.pade_accepted += 1
+            return self._accepted(pade_end[0], a_pade, self.opts.order, pade_end[3])
+        if not fresh:  # stale K*: on from the series' end while it contracts, else refactorise
+            return self._stale(coeffs, d_s, args, substeps)
+        if not np.all(np.isfinite(coeffs)):
+            raise NonFiniteError("series coefficients are not finite with a fresh K*", **failure)
+        if substeps >= self.opts.max_substeps or max(failure["amax"], a_pade) < 1e-12:
+            raise StepFailure(f"series from a fresh K* cannot reach a = 1 after {substeps} "
+                              f"continuation sub-steps (max_substeps = {self.opts.max_substeps})", **failure)
+        d, r = self._continuation_point(coeffs, d_s, failure["amax"], approx, a_pade, pade_end)
+        return _Start(d, r, substep=True)
+
+    def _series(self, path: SeriesPath, r0, c_1, d_s, args):
+        """The series' coefficients ``c_1 .. c_p`` by K* (``c_1`` solved here unless given):
+        ``(coeffs, None)``, or, order-adaptive, ``(None, (x, R(x)))`` when a truncated series is
+        accepted on the way (the norms of ``c_1`` and of the state are taken once)."""
+        P, p, opts = self.problem, self.opts.order, self.opts
         coeffs = np.zeros((p, d_s.size))
-        coeffs[0] = -self.problem.solve(self.factorized(), r0)
+        coeffs[0] = -P.solve(self.factorized(), r0) if c_1 is None else c_1
+        n1 = P.norm(coeffs[0])
+        state_norm = P.norm(d_s) if opts.criterion == "state" else None
         for j in range(2, p + 1):
             rj = path.next(coeffs[j - 2])
-            coeffs[j - 1] = coeffs[j - 2] - self.problem.solve(self.factorized(), rj)
-            if self.opts.adaptive and j < p:
-                accepted = self._accept_early(coeffs[:j], d_s, *args)
+            coeffs[j - 1] = coeffs[j - 2] - P.solve(self.factorized(), rj)
+            if opts.adaptive and j < p:
+                amax = range_of_norms(j, n1, P.norm(coeffs[j - 1]), opts.tol, state_norm)
+                accepted = self._accept_early(coeffs[:j], amax, d_s, *args) if amax >= 1.0 else None
                 if accepted is not None:
                     return None, accepted
         return coeffs, None
+
+    def _stale(self, coeffs, d_s, args, substeps: int) -> _Start:
+        """Where the step goes on after a series from a stale K* falls short of a = 1, as modified
+        Newton keeps its Jacobian while its iteration contracts: from the series' end point with
+        the same K* when that point is nearer the solution than the start by at least
+        ``max_rate`` per order (its Newton distance by K*, ``|K*^-1 R(d_end)|``, at most
+        ``max_rate^p |c_1|``); else K* is refactorised at the start (a K* made at the end point
+        of a series that fell short served the later steps worse on fsw_paper: 7 factorisations
+        in its first 30 steps against 4).  Not beyond ``max_substeps`` sub-steps."""
+        if not (self.opts.max_rate > 0 and substeps < self.opts.max_substeps and np.all(np.isfinite(coeffs))):
+            return _Start(d_s, refactor=True)
+        P = self.problem
+        d_end = d_s + coeffs.sum(axis=0)
+        path = self._path(d_end, args)  # R(d_end) and the next series' start in one evaluation
+        r_end = path.start_residual()
+        if not np.all(np.isfinite(r_end)):
+            return _Start(d_s, refactor=True)
+        correction = P.solve(self.factorized(), r_end)
+        if P.norm(correction) <= self.opts.max_rate ** coeffs.shape[0] * P.norm(coeffs[0]):
+            return _Start(d_end, r_end, -correction, substep=True, path=path)
+        return _Start(d_s, refactor=True)
+
+    def _path(self, d_s, args) -> SeriesPath:
+        """The series path from ``d_s``: the residual coefficient that order j needs depends on
+        c_1 .. c_{j-1} only (and, for the Newton homotopy, on the provisional c_j = c_{j-1})."""
+        return SeriesPath(self.problem, d_s, args, lookahead=self.opts.homotopy == "newton",
+                          max_terms=self.opts.order - 1)
 
     def _try_pade(self, coeffs, d_s, args):
         """With ``pade``, the approximant of a series whose a_max < 1, its range, and when that
@@ -122,7 +182,7 @@ class _ANMStep(Attempt):
         if a_pade < 1.0:
             return approx, a_pade, None
         d_end = d_s + _pade.evaluate(approx, 1.0)
-        check, distance, r_end = self._end_point_check(d_end, d_s, coeffs[0], *args)
+        check, distance, r_end, _ = self._end_point_check(d_end, d_s, coeffs[0], *args)
         return approx, a_pade, (d_end, check, distance, r_end)
 
     def _continuation_point(self, coeffs, d_s, amax, approx, a_pade, pade_end):
@@ -137,17 +197,14 @@ class _ANMStep(Attempt):
             return d_end, r_end  # is closer to the solution than the start (as for a series)
         return d_s + evaluate_series(coeffs, amax), None
 
-    def _accept_early(self, coeffs, d_s, x_old, t, dt, params):
-        """Order-adaptive acceptance of the series truncated at order ``j = len(coeffs) < p``:
-        ``(x, R(x))`` with the end point ``x = d_s + c_1 + ... + c_j`` when its a_max (eq. 26 at
-        order j) reaches 1 and it passes the same end-point check as a full series, else None
+    def _accept_early(self, coeffs, amax, d_s, x_old, t, dt, params):
+        """Order-adaptive acceptance of the series truncated at order ``j = len(coeffs) < p``,
+        whose a_max (eq. 26 at order j) reaches 1: ``(x, R(x))`` with the end point ``x = d_s +
+        c_1 + ... + c_j`` when it passes the same end-point check as a full series, else None
         (the series goes on to order j + 1; a truncated series that fails is no failure of the
         step)."""
-        amax = self._validity_range(coeffs, d_s)
-        if not amax >= 1.0:
-            return None
         d_end = d_s + coeffs.sum(axis=0)
-        check, _, r_end = self._end_point_check(d_end, d_s, coeffs[0], x_old, t, dt, params)
+        check, _, r_end, _ = self._end_point_check(d_end, d_s, coeffs[0], x_old, t, dt, params)
         if check > CHECK_LIMIT:
             return None
         return self._accepted(d_end, amax, coeffs.shape[0], r_end)
@@ -176,7 +233,7 @@ class _ANMStep(Attempt):
         """A-posteriori check of an accepted series: the Newton distance of its end point by the
         factorised K*, ``|K*^-1 R(d_end)|``, over what the acceptance promised (see :class:`ANM`).
 
-        Returns ``(ratio, distance, R(d_end))``.
+        Returns ``(ratio, distance, R(d_end), K*^-1 R(d_end))``.
         One residual evaluation and one triangular solve.  A non-finite residual at the end
         point is not a question of series accuracy: the ratio is then 0 and the state goes to
         the caller, whose accepted-state check names it (:class:`NonFiniteError`).
@@ -184,10 +241,11 @@ class _ANMStep(Attempt):
         P = self.problem
         r_end = P.residual(d_end, x_old, t, dt, params)
         if not np.all(np.isfinite(r_end)):
-            return 0.0, np.inf, r_end
-        distance = P.norm(P.solve(self.fact, r_end))
+            return 0.0, np.inf, r_end, None
+        correction = P.solve(self.factorized(), r_end)
+        distance = P.norm(correction)
         promised = promised_accuracy(P.norm, self.opts.tol, c_1, d_end, reference_state(self.opts.criterion, d_s))
-        return distance / promised, distance, r_end
+        return distance / promised, distance, r_end, correction
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,9 +258,19 @@ class ANM(AttemptSolver):
     :func:`~jaxanm.validity_range`) reaches 1 *and* its end point passes an a-posteriori
     check: its Newton distance ``|K*^-1 R(d_end)|`` must be within
     :data:`~jaxanm._acceptance.CHECK_LIMIT` times what eq. 26 promised (``docs/method/acceptance.md``).
-    A series that falls short with a stale K* is redone after refactorising; with a fresh K*
-    the step goes on by continuation sub-steps.  The new state holds the K* used last and the
-    residual at the accepted state (evaluated by the end-point check).
+    A series that falls short with a stale K* goes on from its end point with the same K* while
+    it contracts (``max_rate``), as modified Newton keeps its Jacobian, else it is redone after
+    refactorising; with a fresh K* the step goes on by continuation sub-steps.  The new state
+    holds the K* used last and the residual at the accepted state (evaluated by the end-point
+    check).
+
+    The defaults are those that hold under a step-size controller as well as at fixed steps
+    (``docs/method/defaults.md``): order-adaptive (``adaptive=True``), the Newton homotopy, the
+    tolerance relative to the state (``criterion="state"``) and a stale K* kept while its
+    series contract at ``max_rate = 0.5``.  The paper's solver is ``ANM(adaptive=False,
+    homotopy="convex", criterion="increment", max_rate=0)`` (:meth:`paper`), which the
+    defaults were until they were measured against modified Newton under the controller: its
+    fixed-order series from a stale K* refactorise where modified Newton iterates on.
 
     Parameters
     ----------
@@ -214,6 +282,8 @@ class ANM(AttemptSolver):
     max_substeps : int
         Continuation sub-steps allowed within one time step (each after a fresh K* still gave
         a_max < 1) before the step is declared failed (then ``integrate`` halves dt); >= 0.
+        The sub-steps from a stale K* (``max_rate``) count too: beyond the limit K* is
+        refactorised instead.
     criterion : {"increment", "state"}
         What ``tol`` is relative to.  ``"increment"`` is the paper's eq. 26: the last term is
         ``tol`` times the first-order increment ``c_1``.  ``"state"`` also accepts a range where
@@ -241,6 +311,14 @@ class ANM(AttemptSolver):
         sub-step goes to ``P_p`` at its range when that is farther than a_max.  Counted in
         ``stats.pade_accepted`` (their ``stats.amax`` entry is the approximant's range, so 1.0).
         Needs ``order >= 3``; with ``adaptive`` the approximant is tried at order p only.
+    max_rate : float
+        In [0, 1).  A series from a stale K* that falls short of a = 1 (its series and Padé
+        approximant) is continued from its end point ``d_s + c_1 + ... + c_j`` with the same K*
+        when that point is nearer the step's solution than the start by at least ``max_rate``
+        per order: its Newton distance ``|K*^-1 R(d_end)|`` at most ``max_rate^j |c_1|``, the
+        contraction modified Newton's ``max_rate`` allows its iterates.  Otherwise K* is
+        refactorised at the series' start.  Counted in ``stats.substeps``.  0: always
+        refactorised, as the paper's solver.
     """
 
     kind = "anm"
@@ -249,16 +327,24 @@ class ANM(AttemptSolver):
     order: int = 7
     tol: float = 1e-6
     max_substeps: int = 50
-    criterion: str = "increment"
-    adaptive: bool = False
-    homotopy: str = "convex"
+    criterion: str = "state"
+    adaptive: bool = True
+    homotopy: str = "newton"
     pade: bool = False
+    max_rate: float = 0.5
+
+    @classmethod
+    def paper(cls, **options) -> "ANM":
+        """The paper's ANM: a series of fixed order (``adaptive=False``) of the convex homotopy
+        (eq. 22), accepted by eq. 26 relative to the increment, and K* refactorised whenever a
+        series from a stale K* falls short (``max_rate=0``); ``options`` (``order``, ``tol``,
+        ...) as for :class:`ANM`, these four included."""
+        return cls(**{"adaptive": False, "homotopy": "convex", "criterion": "increment", "max_rate": 0.0, **options})
 
     def __post_init__(self):
-        if not (isinstance(self.order, (int, np.integer)) and not isinstance(self.order, bool) and self.order >= 2):
-            raise InputError(f"ANM.order must be an integer >= 2, got {self.order!r}: the validity range a_max "
-                             "of eq. 26 compares c_1 with c_p and takes the 1/(p-1)-th root, undefined for p = 1 "
-                             "(an order-1 series is one linearised step: use jaxanm.ModifiedNewton for that)")
+        integer("ANM.order", self.order, 2, hint="the validity range a_max of eq. 26 compares c_1 with c_p and "
+                "takes the 1/(p-1)-th root, undefined for p = 1 (an order-1 series is one linearised step: use "
+                "jaxanm.ModifiedNewton for that)")
         check_tol("ANM", self.tol)
         check_count("ANM", "max_substeps", self.max_substeps, 0)
         check_flag("ANM", "adaptive", self.adaptive)
@@ -271,3 +357,5 @@ class ANM(AttemptSolver):
                              "point (use order >= 3, or pade=False)")
         if self.criterion not in CRITERIA:
             raise InputError(f"ANM.criterion must be 'increment' (eq. 26) or 'state', got {self.criterion!r}")
+        real("ANM.max_rate", self.max_rate, 0, 1, open_high=True,
+             hint="e.g. max_rate=0.5 (0: a stale K* is refactorised whenever its series falls short)")

@@ -7,8 +7,9 @@ import dataclasses
 
 import numpy as np
 
-from .._problem import _relative_change
-from ..errors import InputError, NonFiniteError, StepFailure
+from .._checks import real
+from .._problem import relative_change
+from ..errors import NonFiniteError, StepFailure
 from .base import Attempt, AttemptSolver, check_count, check_tol
 
 
@@ -46,7 +47,7 @@ class _NewtonStep(Attempt):
             x = x + dx
             st.newton_iterations += 1
             previous = size
-            change = _relative_change(P, dx, x)
+            change = relative_change(P, dx, x)
             if change <= self.opts.tol:
                 return x, None
         raise StepFailure(f"{type(self.opts).__name__} did not converge in {self.opts.max_iter} iterations "
@@ -103,6 +104,5 @@ class ModifiedNewton(_NewtonIteration):
     def __post_init__(self):
         check_tol("ModifiedNewton", self.tol)
         check_count("ModifiedNewton", "max_iter", self.max_iter, 1)
-        rate = self.max_rate
-        if not (isinstance(rate, (int, float, np.floating)) and not isinstance(rate, bool) and 0 < rate < 1):
-            raise InputError(f"ModifiedNewton.max_rate must be a float in (0, 1), got {rate!r}; e.g. max_rate=0.5")
+        real("ModifiedNewton.max_rate", self.max_rate, 0.0, 1.0, open_low=True, open_high=True,
+             hint="e.g. max_rate=0.5")

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._compile_ahead import compile_ahead, wait
 from ._shape import shape_functions
 
 CHUNK = 128
@@ -81,6 +82,10 @@ def _joined(parts, n):
     return tuple(jnp.concatenate(p)[:n] if len(p) > 1 else p[0][:n] for p in zip(*parts))
 
 
+_COMPILED: set = set()
+"""(kernel, rows, m, q) of the kernel calls made in this process (:func:`run_kernel`)."""
+
+
 def run_kernel(x, y, mask, h, c, q, derivatives=True):
     """Run :func:`kernel` on all evaluation points, in calls of at most :data:`CALL_MAX`:
     ``(phi, dx, dy, dxx, dxy, dyy)`` (n, m) as jax arrays, ``bound, finite`` (n,) in numpy.
@@ -99,8 +104,17 @@ def run_kernel(x, y, mask, h, c, q, derivatives=True):
 
     x, y, mask, h = padded(x), padded(y), padded(mask), padded(h)
     compiled = kernel if derivatives else value_kernel
+    starts = range(0, n_pad, CALL_MAX)
+    # the calls' distinct shapes (a full call and the rest), new to this process, compile side by
+    # side in the background rather than one after the other at their calls
+    ahead = {(compiled, min(CALL_MAX, n_pad - i), x.shape[1], q): i for i in starts}
+    if len(ahead) > 1 and not set(ahead) <= _COMPILED:
+        for future in [compile_ahead(compiled, x[i:i + CALL_MAX], y[i:i + CALL_MAX], mask[i:i + CALL_MAX],
+                                     h[i:i + CALL_MAX], c, q) for i in ahead.values()]:
+            wait(future)
+    _COMPILED.update(ahead)
     calls = [compiled(x[i:i + CALL_MAX], y[i:i + CALL_MAX], mask[i:i + CALL_MAX], h[i:i + CALL_MAX], c, q)
-             for i in range(0, n_pad, CALL_MAX)]
+             for i in starts]
     weights = _joined(tuple(res[:-2] for res in calls), n)
     bound, finite = (np.concatenate([np.asarray(res[k]) for res in calls])[:n] for k in (-2, -1))
     return (*weights, bound, finite) if derivatives else (*weights, None, None, None, None, None, bound, finite)
