@@ -15,12 +15,21 @@ table from a finished benchmark's JSON and its runs' files, without running anyt
 
     python benchmarks/main_job.py --baseline /path/to/checkout-of-the-old-main \\
         --out benchmarks/results/main_job
+
+The main job against the main job as it was (the entry ``fsw as it was (baseline)``, the
+baseline checkout's ``fsw``) and the ANM against modified Newton on it, keeping the
+fsw_paper row of the committed results::
+
+    python benchmarks/main_job.py --baseline /path/to/checkout-of-the-old-main \\
+        --only "fsw as it was (baseline)" "fsw (main job, ANM)" "fsw, modified Newton" \\
+        --keep benchmarks/results/main_job.json --out benchmarks/results/main_job
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -31,9 +40,13 @@ from types import SimpleNamespace
 
 import numpy as np
 
+BEFORE = "fsw as it was (baseline)"
+"""The entry the main job is held to: the same command run by the baseline checkout."""
+
 ENTRIES = [
     # (label, use the baseline checkout, arguments of `jaxanm run` after the scene)
     ("fsw_paper (before)", True, ["fsw_paper"]),
+    (BEFORE, True, ["fsw"]),
     ("fsw (main job, ANM)", False, ["fsw"]),
     ("fsw, modified Newton", False, ["fsw", "--solver", "mnewton"]),
 ]
@@ -42,11 +55,13 @@ ENTRIES = [
 def run(label: str, baseline: str | None, args: list[str], out: Path) -> dict:
     """One command in a fresh process; its wall, peak RSS and what its summary says."""
     env = dict(os.environ)
-    if baseline:
+    out = out.resolve()
+    if baseline:  # run from the baseline checkout: `python -m` puts the working directory first on sys.path
         env["PYTHONPATH"] = baseline
     cmd = [sys.executable, "-m", "jaxanm", "run", *args, "--out", str(out), "--no-progress"]
     start = time.perf_counter()
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            cwd=baseline or None)
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - start
     err = proc.stderr.read()
@@ -84,12 +99,14 @@ def accuracy(out: Path) -> dict:
 
 def markdown(rows: dict, meta: dict) -> str:
     """The table: medians over the repeats, ratios to the first entry."""
-    first = statistics.median(r["command_s"] for r in rows[ENTRIES[0][0]])
+    first = statistics.median(r["command_s"] for r in rows[next(iter(rows))])
+    before = statistics.median(r["command_s"] for r in rows[BEFORE]) if BEFORE in rows else math.nan
     lines = [f"Back to back on {meta['cpus']} CPUs, {meta['repeats']} alternated repeats each, compile cache warm; "
              f"load averages over the runs {meta['load_min']:.1f}-{meta['load_max']:.1f}.", "",
-             "| command | command wall (s, median) | / first | run wall (s) | peak RSS (GB) | steps | "
-             "factorisations | rise error against the continuum | oscillation of speed / T (largest over the probes) |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |"]
+             "| command | command wall (s, median) | / first | / fsw as it was | run wall (s) | peak RSS (GB) | "
+             "steps | factorisations | rise error against the continuum | "
+             "oscillation of speed / T (largest over the probes) |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |"]
     for label, runs in rows.items():
         cmd = statistics.median(r["command_s"] for r in runs)
         last = runs[-1]
@@ -97,7 +114,8 @@ def markdown(rows: dict, meta: dict) -> str:
         osc = last["oscillation"] or {"windows": []}
         osc_text = "; ".join(f"{w[0]:g}-{w[1]:g} s: {100 * sp:.2g} % / {100 * T:.2g} %" for w, sp, T
                              in zip(osc["windows"], osc["max_speed"], osc["max_T"])) or "-"
-        lines.append(f"| {label} | {cmd:.1f} | {cmd / first:.2f} | {statistics.median(r['run_s'] for r in runs):.1f} | "
+        lines.append(f"| {label} | {cmd:.1f} | {cmd / first:.2f} | {cmd / before:.2f} | "
+                     f"{statistics.median(r['run_s'] for r in runs):.1f} | "
                      f"{max(r['peak_rss_gb'] for r in runs):.2f} | {last['steps']} | {last['factorizations']} | "
                      f"{rise_text} | {osc_text} |")
     return "\n".join(lines) + "\n"
@@ -111,6 +129,7 @@ def main(argv=None) -> None:
     ap.add_argument("--only", nargs="*", default=None, help="labels to run (default: all)")
     ap.add_argument("--work", default="results/main_job", help="where the runs write their outputs")
     ap.add_argument("--out", default=None, help="write OUT.md and OUT.json")
+    ap.add_argument("--title", default="The main job against fsw_paper", help="the title of OUT.md")
     ap.add_argument("--no-warm", action="store_true", help="skip the untimed first run of each entry")
     ap.add_argument("--keep", default=None, metavar="JSON",
                     help="take the rows of the entries left out by --only from this earlier benchmark's JSON")
@@ -118,7 +137,7 @@ def main(argv=None) -> None:
                     help="rebuild the table from this finished benchmark's JSON and the runs under --work")
     args = ap.parse_args(argv)
     if args.render:
-        return write(render(Path(args.render), Path(args.work)), args.out)
+        return write(render(Path(args.render), Path(args.work)), args.out, args.title)
     entries = [e for e in ENTRIES if args.only is None or e[0] in args.only]
     work = Path(args.work)
 
@@ -145,7 +164,7 @@ def main(argv=None) -> None:
                 if label in rows or label in kept["rows"]}
         meta["kept"] = {"from": args.keep, "entries": [label for label in rows if label not in
                                                       [e[0] for e in entries]], "meta": kept["meta"]}
-    write({"meta": meta, "rows": rows}, args.out)
+    write({"meta": meta, "rows": rows}, args.out, args.title)
 
 
 def render(path: Path, work: Path) -> dict:
@@ -160,7 +179,7 @@ def render(path: Path, work: Path) -> dict:
     return data
 
 
-def write(data: dict, out: str | None) -> None:
+def write(data: dict, out: str | None, title: str = "The main job against fsw_paper") -> None:
     """Print the table; with ``out``, write it to OUT.md and the rows to OUT.json."""
     text = markdown(data["rows"], data["meta"])
     kept = data["meta"].get("kept")
@@ -170,7 +189,7 @@ def write(data: dict, out: str | None) -> None:
                  "run again after a change that the kept entries do not run.\n")
     print(text)
     if out:
-        Path(out + ".md").write_text("# The main job against fsw_paper\n\n"
+        Path(out + ".md").write_text(f"# {title}\n\n"
                                      "Made by `benchmarks/main_job.py`.\n\n" + text)
         Path(out + ".json").write_text(json.dumps(data, indent=1))
 

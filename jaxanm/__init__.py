@@ -1,6 +1,7 @@
 """jaxanm: a high-order implicit solver (Asymptotic Numerical Method) on JAX.
 
-The residual of an implicit time step is written once in ``jax.numpy``; tangents come from
+The residual of an implicit time step (or the semi-discrete ``F(u, u_dot, t, params) = 0`` that
+a time scheme builds its stages from) is written once in ``jax.numpy``; tangents come from
 ``jax.jacfwd``, homotopy series coefficients from ``jax.experimental.jet``, and each series
 order is solved with one host LU factorisation of K*, reused while the series stays valid.
 
@@ -17,6 +18,7 @@ from ._hooks import Remap
 from ._integrate import Solution, integrate
 from ._run_checkpoint import stored_host_state
 from ._saveat import SaveAt
+from ._scheme import BDF2, ESDIRK, ImplicitEuler, SemiDiscrete, TimeScheme, make_scheme, scheme_names
 from ._sensitivity_method import SensitivityMethod
 from ._series import taylor_coefficients
 from ._solver import ANM, ModifiedNewton, Newton, SolverState, StepSolver, make_solver, solver_kinds
@@ -34,19 +36,23 @@ from .stats import Stats
 
 __all__ = [
     "ANM",
+    "BDF2",
     "Branch",
     "BranchPoints",
     "ConstantStepSize",
     "ContinuationFailure",
+    "ESDIRK",
     "Event",
     "Factorization",
     "ForwardSensitivity",
+    "ImplicitEuler",
     "InputError",
     "ModifiedNewton",
     "Newton",
     "NonFiniteError",
     "Remap",
     "SaveAt",
+    "SemiDiscrete",
     "Sensitivities",
     "SensitivityMethod",
     "SingularMatrixError",
@@ -58,6 +64,7 @@ __all__ = [
     "StepEnd",
     "StepFailure",
     "StepSolver",
+    "TimeScheme",
     "color_columns",
     "continuation",
     "critical_load",
@@ -66,8 +73,10 @@ __all__ = [
     "factorize",
     "float64",
     "integrate",
+    "make_scheme",
     "make_solver",
     "newton_continuation",
+    "scheme_names",
     "sensitivities",
     "solver_kinds",
     "stored_host_state",

@@ -51,7 +51,8 @@ class ConstantStepSize(StepSizeController):
         halves = (Segment(failed.t, half, depth), Segment(failed.t + half, half, depth))
         return attempt._replace(segments=halves + attempt.segments[1:], failures=attempt.failures + 1)
 
-    def judge(self, state: _Fixed, attempt: Attempt, k: int, x, x_new, params, scale, span: Span) -> Verdict:
+    def judge(self, state: _Fixed, attempt: Attempt, k: int, x, x_new, params, scale, span: Span,
+              embedded=None) -> Verdict:
         """Every solved step is accepted."""
         return Verdict(state)
 

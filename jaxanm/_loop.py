@@ -4,17 +4,20 @@ Every step goes the same way, whatever the controller (:mod:`jaxanm._step_size`)
 
 1. the controller plans the step (:meth:`~jaxanm._step_size.StepSizeController.attempt`): its
    end time and the segments it is solved in;
-2. each segment is solved by the step solver from the state the previous one reached
-   (:meth:`TimeLoop._solve_segment`); a solve that fails (:class:`~jaxanm.StepFailure`, or a
-   non-finite accepted state) is handed back to the controller, which says how to retry
+2. each segment is one step of the time scheme (:class:`~jaxanm.TimeScheme`) from the state
+   and the scheme's history the previous one reached (:meth:`TimeLoop._solve_segment`): the
+   scheme poses its stages, and the step solver solves each (:meth:`TimeLoop._solve_stage`);
+   a solve that fails (:class:`~jaxanm.StepFailure`, or a non-finite state) is handed back to
+   the controller, which says how to retry
    (:meth:`~jaxanm._step_size.StepSizeController.retry`: fixed steps halve the segment, the
    adaptive controller retries the step at a quarter of its size) or raises;
 3. the sensitivity method, if any, polishes each solved segment (its failures are not
    retried);
-4. the controller judges the solved step; a refused step is retried as it says;
+4. the controller judges the solved step (with the scheme's error estimate); a refused step
+   is retried as it says;
 5. the accepted step is recorded (:meth:`TimeLoop._accept`): the ``after_step`` hook, what
-   is saved, the new :class:`~jaxanm._loop_state.LoopState`, then the callback, the progress
-   bar and the periodic checkpoint.
+   is saved, the new :class:`~jaxanm._loop_state.LoopState` (with the scheme's history), then
+   the callback, the progress bar and the periodic checkpoint.
 
 The loop owns the run's record, a :class:`~jaxanm._loop_state.LoopState` it replaces at every
 change, and is the one place that counts its own work in the run's :class:`~jaxanm.Stats`:
@@ -38,6 +41,7 @@ from ._problem import Problem
 from ._run_checkpoint import Checkpoints, from_checkpoint
 from ._run_inputs import on_device, remapped_state
 from ._saveat import SaveAt
+from ._scheme import SchemeStep
 from ._sensitivity_method import SensitivityMethod
 from ._solver import StepSolver
 from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
@@ -104,6 +108,7 @@ class TimeLoop:
         o = self.options = options
         self.solver, self.scale, self.saveat = solver, scale, saveat
         self.controller, self.span, self.sensitivity = o.controller, o.span, o.sensitivity
+        self.scheme = o.span.scheme
         span = o.span
         payload = o.checkpoints.load() if o.checkpoints.resumable(os.path.exists) else None
         stats = Stats() if payload is None else payload["stats"]
@@ -115,7 +120,7 @@ class TimeLoop:
         else:  # a placeholder: the checkpoint's record replaces it (from_checkpoint)
             kept = Kept(Log.of([]), Log.of([]), None, None)
         self.state = LoopState(k=0, t=float(span.t0), x=x0, params=params, solver_state=solver_state,
-                               controller_state=controller_state, kstar_dt=None, kept=kept)
+                               controller_state=controller_state, scheme_state=None, kstar_dt=None, kept=kept)
         if payload is not None:
             self._resume(payload)
         o.sensitivity.start(self.problem, span.t0, x0, params)
@@ -170,65 +175,90 @@ class TimeLoop:
         controller = self.controller
         attempt = controller.attempt(start.controller_state, k, start.t, start.x, start.params, self.span)
         while True:
-            x_new, r_norm, attempt = self._solve(attempt, k)
+            x_new, r_norm, attempt, solved = self._solve(attempt, k)
             verdict = controller.judge(start.controller_state, attempt, k, start.x, x_new, start.params,
-                                       self.scale, self.span)
+                                       self.scale, self.span, solved.embedded)
             if verdict.retry is None:
                 break
             self.tally.refused()
             attempt = verdict.retry
-        self._accept(k, attempt.end, x_new, r_norm, verdict)
+        self._accept(k, attempt.end, x_new, r_norm, verdict, solved.history)
 
     def _solve(self, attempt: Attempt, k: int):
         """The segments of ``attempt``, in order, retried as the controller says when a solve
-        fails: ``(x at the end, |R|_inf there, the attempt as finally solved)``."""
-        x, pending = self.state.x, attempt.segments
+        fails: ``(x at the end, |R|_inf there, the attempt as finally solved, the scheme's step
+        of the last segment)``, that step's ``history`` carried through the segments."""
+        x, history, pending = self.state.x, self.state.scheme_state, attempt.segments
+        solved = None
         while pending:
             segment = pending[0]
             try:
-                x_new, r_norm = self._solve_segment(x, segment, k)
+                solved, r_norm = self._solve_segment(x, history, segment, k)
             except StepFailure as failure:
                 attempt = self.controller.retry(self.state.controller_state, attempt._replace(segments=pending),
                                                 failure, self.span)
                 self.tally.retried()
                 pending = attempt.segments
                 continue
-            x, r_norm = self._polished(x, x_new, r_norm, segment, k)
+            x, r_norm = self._polished(x, solved.x, r_norm, segment, k)
+            history = solved.history
             pending = pending[1:]
-        return x, r_norm, attempt
+        assert solved is not None  # an attempt has at least one segment
+        return x, r_norm, attempt, solved._replace(history=history)
 
-    def _solve_segment(self, x, segment: Segment, k: int):
-        """One solve of step ``k`` from ``x``: ``(x_new, |R(x_new)|_inf)`` (None when the
-        sensitivity method polishes, and measures, the state itself).
+    def _solve_segment(self, x, history, segment: Segment, k: int) -> tuple[SchemeStep, float | None]:
+        """One step of the time scheme over ``segment`` from ``x`` and the scheme's
+        ``history``: ``(the scheme's step, |R|_inf at its end state)`` (None when the
+        sensitivity method polishes, and measures, the state itself)."""
+        norms: list = []
 
-        A K* the solver carries from a step size more than the controller's
+        def solve(z, t, gamma_h, last=False, start=None):
+            x_stage, r_norm = self._solve_stage(z, t, gamma_h, k, last, start)
+            norms.append(r_norm)
+            return x_stage
+
+        step = self.scheme.step(history, x, segment.t, segment.h, solve)
+        return step, norms[-1]
+
+    def _solve_stage(self, z, t, gamma_h, k: int, last: bool, start=None):
+        """One solve of step ``k``: the stage ``R(x, z, t, gamma_h) = 0`` from ``start`` (or ``z``):
+        ``(x, |R(x)|_inf)`` for the step's last stage (None when the sensitivity method
+        polishes, and measures, the state itself), ``(x, None)`` for the others.
+
+        A K* the solver carries from a stage size more than the controller's
         ``refactor_ratio`` away is dropped first (its factors freed: the loop owns the solver
         state, and one LU stays alive); the record then holds the solver's new state, and the
-        step size of the K* it carries.  A non-finite state or residual is a
+        stage size of the K* it carries.  A non-finite state or residual is a
         :class:`NonFiniteError`, retried like any failed solve.
         """
         solver, state = self.solver, self.state.solver_state
         kstar = solver.factorization(state) if solver.reuses_factorization else None
         kstar_dt = self.state.kstar_dt
         if kstar is not None and kstar_dt is not None:
-            if max(segment.h / kstar_dt, kstar_dt / segment.h) > self.controller.refactor_ratio:
+            if max(gamma_h / kstar_dt, kstar_dt / gamma_h) > self.controller.refactor_ratio:
                 kstar.release()  # before the solver makes the next: one LU alive
                 state = solver.with_factorization(state, None)
                 kstar = None
         # numpy scalars: a jnp scalar costs a device dispatch per conversion
-        t_new, h_new = np.float64(segment.t + segment.h), np.float64(segment.h)
-        try:
-            x_new, state = solver.step(state, k, x, t_new, h_new, self.state.params)
+        t_new, h_new = np.float64(t), np.float64(gamma_h)
+        try:  # a start only when the scheme gives one: a user's solver written without it serves Euler
+            extra = {} if start is None else {"start": start}
+            x_new, state = solver.step(state, k, z, t_new, h_new, self.state.params, **extra)
         except StepFailure as failure:
             state = solver.state_after_failure(state, failure)
             raise
         finally:  # a failed step may leave a K* it made for the retry (state_after_failure)
             if solver.factorization(state) is not kstar:
-                kstar_dt = segment.h
+                kstar_dt = float(gamma_h)
             self.state = self.state._replace(solver_state=state, kstar_dt=kstar_dt)
+        if not last:
+            if not np.all(np.isfinite(x_new)):
+                raise NonFiniteError(f"a stage of the {self.scheme.name} step has "
+                                     f"{int(np.sum(~np.isfinite(x_new)))} non-finite entries", step=k, t=t_new)
+            return x_new, None
         if self.sensitivity.polishes:
             return x_new, None
-        return x_new, self._checked_residual(x_new, x, t_new, h_new, k)
+        return x_new, self._checked_residual(x_new, z, t_new, h_new, k)
 
     def _checked_residual(self, x_new, x, t_new, h_new, k: int) -> float:
         """``|R(x_new)|_inf`` (the solver's, if it evaluated it there); :class:`NonFiniteError`
@@ -257,8 +287,10 @@ class TimeLoop:
                 solver_state=solver.with_factorization(self.state.solver_state, polished.factorization))
         return polished.x, polished.residual_norm
 
-    def _accept(self, k: int, t_new: float, x_new, r_norm: float, verdict: Verdict) -> None:
-        """Hand an accepted step to the hooks and record it (signals wait meanwhile)."""
+    def _accept(self, k: int, t_new: float, x_new, r_norm: float, verdict: Verdict, history) -> None:
+        """Hand an accepted step to the hooks and record it (signals wait meanwhile); a
+        :class:`Remap` restarts the scheme's ``history`` (and the controller's, when the scheme
+        had one or the remap says so)."""
         o, s, guard = self.options, self.state, self.guard
         if guard is None:  # run() sets it around the steps
             raise RuntimeError("a step is accepted outside TimeLoop.run")
@@ -267,8 +299,9 @@ class TimeLoop:
         controller_state = verdict.state
         params_new = o.after_step(t_new, x_new, s.params)
         if isinstance(params_new, Remap):
-            if not params_new.history:
+            if not params_new.history or history is not None:
                 controller_state = self.controller.forget(controller_state)
+            history = self.scheme.restart(history)
             x_new = remapped_state(params_new.x, x_new)
             params_new = params_new.params
         if params_new is not s.params:
@@ -276,7 +309,7 @@ class TimeLoop:
         saved = self.controller.saved(controller_state, k, t_new, self.span)
         kept = s.kept.after(t_new, x_new, params_new, saved=saved, observe=self.saveat.fn)
         self.state = s._replace(k=k, t=t_new, x=x_new, params=params_new, controller_state=controller_state,
-                                kept=kept)
+                                scheme_state=history, kept=kept)
         self.sensitivity.record(t_new, x_new, params_new)
         guard.release()
         o.callback(t_new, x_new, self.stats)

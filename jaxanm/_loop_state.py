@@ -106,9 +106,13 @@ class LoopState(NamedTuple):
         holds the newest K*.
     controller_state :
         The step-size controller's state (:meth:`jaxanm.StepController.init`).
+    scheme_state :
+        The time scheme's history after the last accepted step (:class:`jaxanm.TimeScheme`:
+        BDF2's previous state, an ESDIRK's derivative; None for implicit Euler and at the start).
     kstar_dt : float or None
-        The step size the solver's K* was factorised at (the controller's ``refactor_ratio``
-        compares the next step's with it); None before the first factorisation.
+        The stage size (``gamma h``; h for implicit Euler) the solver's K* was factorised at
+        (the controller's ``refactor_ratio`` compares the next stage's with it); None before
+        the first factorisation.
     kept : Kept
         The saved times, states, params and observations so far.
     """
@@ -119,5 +123,6 @@ class LoopState(NamedTuple):
     params: object
     solver_state: SolverState
     controller_state: object
+    scheme_state: object
     kstar_dt: float | None
     kept: Kept

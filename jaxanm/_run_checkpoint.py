@@ -4,12 +4,14 @@ writer the loop calls (a do-nothing one when the run has no checkpoint path).
 A run checkpoint is a dict written by :func:`jaxanm.checkpoint.write_atomic` (which adds the
 file ``format``).  Version :data:`VERSION` holds:
 
-- ``version``: :data:`VERSION`; ``fingerprint``: the run's size, span, step, solver and
-  controller settings (a checkpoint resumes only the run it was written by);
+- ``version``: :data:`VERSION`; ``fingerprint``: the run's size, span, step, solver,
+  controller and time scheme (a checkpoint resumes only the run it was written by);
 - ``k``, ``t``, ``x``, ``params`` (host arrays): the last accepted step (:class:`LoopState`);
 - ``ts``, ``xs``, ``ps``, ``observed`` (lists): what the run kept so far;
 - ``controller``: what the step-size controller stores of its state
   (:meth:`~jaxanm.StepController.to_checkpoint`); ``kstar_dt``;
+- ``scheme``: the time scheme's history (:class:`~jaxanm.TimeScheme`: numpy arrays and floats,
+  stored as they are, so a resumed multistep or Runge-Kutta run goes on bit-identically);
 - ``solver``: what the step solver stores of its state (the matrix of its K*, refactorised on
   resume: the same factors, so a resumed run is bit-identical);
 - ``stats``: the :class:`~jaxanm.Stats` so far;
@@ -24,8 +26,9 @@ from ._loop_state import Kept, Log, LoopState
 from .checkpoint import read, to_host, write_atomic
 from .errors import InputError
 
-VERSION = 2
-"""The run checkpoint version this jaxanm writes and reads (1: before the loop's record)."""
+VERSION = 3
+"""The run checkpoint version this jaxanm writes and reads (1: before the loop's record; 2:
+before the time schemes)."""
 
 
 def to_checkpoint(state: LoopState, *, fingerprint: dict, stats, solver: object, controller: object,
@@ -39,7 +42,8 @@ def to_checkpoint(state: LoopState, *, fingerprint: dict, stats, solver: object,
         "k": state.k, "t": state.t, "x": state.x, "params": to_host(state.params),
         "ts": kept.ts.tolist(), "xs": kept.xs.tolist(), "ps": None if kept.ps is None else kept.ps.tolist(),
         "observed": None if kept.observed is None else {key: log.tolist() for key, log in kept.observed.items()},
-        "controller": controller, "kstar_dt": state.kstar_dt, "solver": solver, "stats": stats,
+        "controller": controller, "kstar_dt": state.kstar_dt, "scheme": state.scheme_state, "solver": solver,
+        "stats": stats,
         "host_state": host_state,
     }
 
@@ -52,7 +56,7 @@ def from_checkpoint(payload: dict, start: LoopState) -> LoopState:
     kept = Kept(Log.of(payload["ts"]), Log.of(payload["xs"]), None if payload["ps"] is None else Log.of(payload["ps"]),
                 None if observed is None else {key: Log.of(v) for key, v in observed.items()})
     return start._replace(k=payload["k"], t=payload["t"], x=payload["x"], params=payload["params"],
-                          kstar_dt=payload["kstar_dt"], kept=kept)
+                          kstar_dt=payload["kstar_dt"], scheme_state=payload["scheme"], kept=kept)
 
 
 def load(path, fingerprint: dict | None = None) -> dict:

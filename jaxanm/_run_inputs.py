@@ -14,6 +14,7 @@ import scipy.sparse
 
 from ._constant_step import ConstantStepSize
 from ._saveat import SaveAt
+from ._scheme import ImplicitEuler, SemiDiscrete, TimeScheme, stage_residual
 from ._sensitivity_method import SensitivityMethod
 from ._solver import StepSolver
 from ._step_size import StepSizeController
@@ -72,6 +73,30 @@ def check_run_options(checkpoint, checkpoint_every, resume, host_state, after_st
     if after_step is not None or not _fixed(controller) or checkpoint is not None:
         raise InputError("sensitivity cannot be combined with after_step (params changed on the host are not "
                          "differentiable), a StepController or checkpoints (the sensitivities are not stored)")
+
+
+def check_scheme(residual, scheme, sensitivity):
+    """Check that ``scheme`` can serve ``residual`` (:class:`InputError` naming the argument and
+    the fix); return the step-shaped residual the solvers work on and the scheme (None:
+    implicit Euler)."""
+    scheme = ImplicitEuler() if scheme is None else scheme
+    if not isinstance(scheme, TimeScheme):
+        raise InputError(f"scheme must be jaxanm.ImplicitEuler(), jaxanm.BDF2(), jaxanm.ESDIRK(order=3 or 4) or "
+                         f"another jaxanm.TimeScheme, got {scheme!r}")
+    if not (isinstance(residual, SemiDiscrete) or callable(residual)):
+        raise InputError("residual must be a one-step residual R(x_new, x_old, t_new, dt, params) or a "
+                         f"jaxanm.SemiDiscrete(F), got {residual!r}")
+    if not (scheme.one_step or isinstance(residual, SemiDiscrete)):
+        raise InputError(f"scheme={scheme!r} cannot use a one-step residual R(x_new, x_old, t_new, dt, params): "
+                         "it is the residual of an implicit-Euler step, which says nothing of the time derivative "
+                         "the scheme's stages need.  Pass the residual in semi-discrete form, "
+                         "jaxanm.SemiDiscrete(F) with F(u, u_dot, t, params), or "
+                         "jaxanm.SemiDiscrete(step_residual=R) when R depends on x_old only through "
+                         "(x_new - x_old) / dt (see jaxanm.SemiDiscrete); or use scheme=jaxanm.ImplicitEuler()")
+    if sensitivity is not None and not isinstance(scheme, ImplicitEuler):
+        raise InputError(f"sensitivity supports only scheme=jaxanm.ImplicitEuler(), got scheme={scheme!r}: the "
+                         "forward sensitivities are propagated through implicit-Euler steps")
+    return stage_residual(residual), scheme
 
 
 def _fixed(controller) -> bool:

@@ -18,17 +18,20 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ._saveat import SaveAt
+from ._scheme import TimeScheme
 
 
 class Span(NamedTuple):
     """The run as a controller sees it: the time span, the first (or fixed) step size, what is
-    saved, and how many retries a failed solve gets (``integrate``'s ``max_dt_halvings``)."""
+    saved, how many retries a failed solve gets (``integrate``'s ``max_dt_halvings``) and the
+    time scheme (whose error estimate and order an adaptive controller reads)."""
 
     t0: float
     t1: float
     dt: float
     saveat: SaveAt
     max_failures: int
+    scheme: TimeScheme
 
 
 class Segment(NamedTuple):
@@ -90,8 +93,9 @@ class StepSizeController(abc.ABC):
 
     @abc.abstractmethod
     def judge(self, state, attempt: Attempt, k: int, x: np.ndarray, x_new: np.ndarray, params, scale,
-              span: Span) -> Verdict:
-        """Accept or refuse step ``k``, solved from ``x`` to ``x_new`` as ``attempt`` planned."""
+              span: Span, embedded: np.ndarray | None = None) -> Verdict:
+        """Accept or refuse step ``k``, solved from ``x`` to ``x_new`` as ``attempt`` planned
+        (``embedded``: the scheme's embedded solution at its end, if it has one)."""
 
     @abc.abstractmethod
     def saved(self, state, k: int, t: float, span: Span) -> bool:

@@ -1,7 +1,9 @@
-"""SUNDIALS IDA (variable-order BDF) on a jaxanm step residual: the external adaptive baseline.
+"""SUNDIALS IDA (variable-order BDF) on a jaxanm residual: the external adaptive baseline.
 
-jaxanm's problems are written as the implicit-Euler step residual
-``R(x_new, x_old, t_new, dt, params)`` (:func:`jaxanm.integrate`).  When ``R`` depends on
+A residual in semi-discrete form, ``jaxanm.SemiDiscrete(F)`` with ``F(u, u_dot, t, params)``,
+is IDA's DAE residual ``F(t, y, y')`` as it is.  jaxanm's problems are also written as the
+implicit-Euler step residual ``R(x_new, x_old, t_new, dt, params)`` (:func:`jaxanm.integrate`;
+given plain or as ``SemiDiscrete(step_residual=R)``).  When ``R`` depends on
 ``x_old`` only through the difference quotient ``(L x_new - L x_old) / dt`` of a *linear*
 map ``L`` (values of the fields at the points), apart from row scalings that depend on ``dt``
 alone, then for any fixed ``h0 > 0``::
@@ -24,9 +26,10 @@ is one row-wise ratio, the same for independent random ``(y, y')``.  A Lagrangia
 IDA's Newton matrix is ``dF/dy + cj dF/dy' = R_x + (1 - cj h0) R_xold``.  It is computed by
 the project's coloured compressed forward-mode Jacobian (:class:`jaxanm.SparseJacobian`)
 of ``x -> R(x, x - h0 (y' + cj (x - y)), t, h0)`` at ``x = y`` (whose derivative is exactly
-that matrix), handed to IDA's sparse direct solver (SuperLU_MT) in CSC order.  The pattern
-must contain the nonzeros of both ``R_x`` and ``R_xold`` (the FSW model's ``sparsity`` does:
-each row couples to its stencil, all fields).
+that matrix; for a semi-discrete ``F``, of ``x -> F(x, y' + cj (x - y), t)``), handed to
+IDA's sparse direct solver (SuperLU_MT) in CSC order.  The pattern must contain the nonzeros
+of both ``R_x`` and ``R_xold`` (the FSW model's ``sparsity`` does: each row couples to its
+stencil, all fields).
 
 Consistent initial values.  IDA needs ``F(t0, y0, y0') = 0``.  Unless ``yp0`` is given, the
 run starts with two implicit-Euler steps of size ``ic_dt`` (jaxanm's modified Newton at ``ic_tol``):
@@ -64,6 +67,7 @@ import scipy.sparse
 
 from ._extras import require
 from ._run_inputs import params_float64
+from ._scheme import SemiDiscrete, stage_residual
 from ._x64 import entry_point
 from .errors import InputError
 from .jacobian import SparseJacobian, detect_sparsity
@@ -126,18 +130,49 @@ class IDASolution:
     stats: IDAStats
 
 
+def dae_residual(residual: Callable | SemiDiscrete) -> Callable:
+    """Jitted ``(t, y, yp, h0, params) -> F(t, y, y')``: ``F(y, yp, t, params)`` of a
+    ``SemiDiscrete(F)``, else ``R(y, y - h0 yp, t, h0, params)`` of a step residual of the
+    contract above (module docstring; ``h0`` unused by ``F``)."""
+    if isinstance(residual, SemiDiscrete) and residual.fn is not None:
+        return _semi_discrete_dae(residual.fn)
+    return _step_dae(stage_residual(residual))
+
+
 @functools.lru_cache(maxsize=64)
-def dae_residual(residual: Callable) -> Callable:
-    """Jitted ``(t, y, yp, h0, params) -> R(y, y - h0 yp, t, h0, params)``: the DAE residual
-    ``F(t, y, y')`` of a step residual of the contract above (module docstring)."""
+def _semi_discrete_dae(fn: Callable) -> Callable:
+    """One jitted function per ``fn`` (its compiled code shared by every run)."""
+    return jax.jit(lambda t, y, yp, h0, params: fn(y, yp, t, params))
+
+
+@functools.lru_cache(maxsize=64)
+def _step_dae(residual: Callable) -> Callable:
+    """One jitted function per step residual (its compiled code shared by every run)."""
     return jax.jit(lambda t, y, yp, h0, params: residual(y, y - h0 * yp, t, h0, params))
 
 
+def _newton_matrix_residual(residual: Callable | SemiDiscrete) -> Callable:
+    """``(x, (y, yp, cj), t, h0, params) -> F(t, x, yp + cj (x - y))`` (module docstring): its
+    derivative in ``x`` at ``x = y`` is IDA's ``dF/dy + cj dF/dy'``."""
+    if isinstance(residual, SemiDiscrete) and residual.fn is not None:
+        return _semi_discrete_newton(residual.fn)
+    return _step_newton(stage_residual(residual))
+
+
 @functools.lru_cache(maxsize=64)
-def _newton_matrix_residual(residual: Callable) -> Callable:
-    """``(x, (y, yp, cj), t, h0, params) -> R(x, x - h0 (yp + cj (x - y)), t, h0, params)``:
-    its derivative in ``x`` at ``x = y`` is IDA's ``dF/dy + cj dF/dy'`` (one function object per
-    residual, so the compressed Jacobian compiles once)."""
+def _semi_discrete_newton(fn: Callable) -> Callable:
+    """One function object per ``fn``, so the compressed Jacobian compiles once."""
+
+    def g(x, aux, t, h0, params):
+        y, yp, cj = aux
+        return fn(x, yp + cj * (x - y), t, params)
+
+    return g
+
+
+@functools.lru_cache(maxsize=64)
+def _step_newton(residual: Callable) -> Callable:
+    """One function object per step residual, so the compressed Jacobian compiles once."""
 
     def g(x, aux, t, h0, params):
         y, yp, cj = aux
@@ -230,7 +265,7 @@ def _check_start_residual(F, t0, x0, yp0, h0, params, consistency_tol):
 
 def _newton_pattern(g, x0, sparsity, t0, h0, params) -> scipy.sparse.csc_matrix:
     """The CSC pattern of IDA's Newton matrix: the given ``sparsity`` (a pattern or a callable
-    of ``params``), or detected from dense probes of ``g`` (:func:`_newton_matrix_residual`)."""
+    of ``params``), or detected from the jaxpr of ``g`` (:func:`_newton_matrix_residual`)."""
     n = x0.size
     if sparsity is None:
         pattern = detect_sparsity(g, x0, (x0, jnp.zeros(n), 0.37 / h0), t0, h0, params)
@@ -293,22 +328,21 @@ def _march(solver, t_start: float, t_out, max_steps: int, stats: IDAStats, wall0
 
 
 @entry_point
-def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol: float = 1e-6,
+def integrate_ida(residual: Callable | SemiDiscrete, x0, params=None, *, t0: float, t_out, rtol: float = 1e-6,
                   atol=1e-8, scale=None, sparsity=None, h0: float | None = None, yp0=None,
                   ic_dt: float | None = None, ic_tol: float = 1e-12, consistency_tol: float = 1e-8,
                   max_order: int = 5, first_step: float = 0.0, max_step: float = 0.0,
                   max_steps: int = 200_000, nthreads: int = 1) -> IDASolution:
-    """Integrate the DAE ``R(y, y - h0 y', t, h0, params) = 0`` of a jaxanm step residual with IDA.
+    """Integrate the DAE ``F(y, y', t, params) = 0`` of a :class:`jaxanm.SemiDiscrete` residual,
+    or ``R(y, y - h0 y', t, h0, params) = 0`` of a jaxanm step residual, with IDA.
 
     Parameters
     ----------
-    residual : callable
-        ``residual(x_new, x_old, t_new, dt, params) -> (n,)`` in ``jax.numpy``, of the form of
-        the module docstring (``x_old`` only through a difference quotient of a linear map).
-    x0, params : array (n,), pytree
-        State at ``t0``; parameters of the residual (fixed for the run).
-    t0 : float
-        Initial time.
+    residual : SemiDiscrete or callable
+        ``jaxanm.SemiDiscrete(F)``, ``F(u, u_dot, t, params) -> (n,)``; or a step residual
+        ``(x_new, x_old, t_new, dt, params) -> (n,)`` of the module docstring's form.
+    x0, params, t0 : array (n,), pytree, float
+        State at ``t0``; parameters of the residual (fixed for the run); the initial time.
     t_out : array of float
         Output times, strictly increasing, after ``t0`` (after ``t0 + 2 ic_dt`` without ``yp0``).
     rtol, atol : float
@@ -317,11 +351,11 @@ def integrate_ida(residual: Callable, x0, params=None, *, t0: float, t_out, rtol
     scale : float or array (n,)
         Characteristic magnitude of each unknown (as in :func:`jaxanm.integrate`).
     sparsity : scipy sparse matrix, callable ``params -> pattern``, or None
-        Pattern of ``R_x`` and ``R_xold`` together; None detects it from dense probes
-        (:func:`jaxanm.detect_sparsity`, small problems only).
+        Pattern of ``R_x`` and ``R_xold`` together (of ``F_u`` and ``F_u_dot``); None detects it
+        (:func:`jaxanm.detect_sparsity`).
     h0 : float
-        The ``dt`` of the residual's row scalings (default ``1e-3`` of the span); the DAE does
-        not depend on it, the conditioning of its rows does.
+        The ``dt`` of a step residual's row scalings (default ``1e-3`` of the span): the DAE does
+        not depend on it, its rows' conditioning does; unused by a semi-discrete ``F``.
     yp0 : array (n,), optional
         A consistent ``y'(t0)``; checked (``max |F| <= consistency_tol``).  Without it, the
         consistent start of the module docstring.

@@ -21,6 +21,7 @@ from ._forward_sensitivity import ForwardSensitivity, Sensitivities, Sensitivity
 from ._integrate import integrate
 from ._run_inputs import check_run_inputs
 from ._saveat import SaveAt
+from ._scheme import stage_residual
 from ._theta import bind_paths, theta_float64
 from ._x64 import entry_point
 from .errors import InputError
@@ -42,7 +43,8 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
     Parameters
     ----------
     residual, x0, t0, t1, dt, solver, scale, jacobian, sparsity, max_dt_halvings :
-        As in :func:`jaxanm.integrate` (the residual contract is the same).
+        As in :func:`jaxanm.integrate` (the residual contract is the same: a one-step residual
+        or a :class:`~jaxanm.SemiDiscrete` one, stepped by implicit Euler).
     params : pytree
         The residual's parameters; the differentiated leaves are replaced by ``bind``.
     theta : dict name -> float or array
@@ -73,6 +75,7 @@ def sensitivities(residual: Callable, x0, params, theta: dict, *, observe: Calla
     """
     start = time.perf_counter()
     check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian)
+    residual = stage_residual(residual)  # the implicit-Euler step of a semi-discrete residual
     forward = ForwardSensitivity(residual, params, theta, observe, bind=bind, tangents=tangents,
                                  polish_tol=polish_tol, max_polish=max_polish, max_refine=max_refine)
     solution = integrate(residual, x0, forward.bound_params, t0=t0, t1=t1, dt=dt, solver=solver, scale=scale,

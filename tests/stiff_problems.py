@@ -1,12 +1,15 @@
-"""Classical stiff initial-value problems as implicit-Euler step residuals, with references.
+"""Classical stiff initial-value problems as implicit-Euler step residuals and in semi-discrete
+form, with references.
 
 Each problem ``x' = f(x)`` is written as the step residual ``(x - x_old) / dt - f(x)`` that
-:func:`jaxanm.integrate` solves.  :func:`problem` returns a :class:`Stiff` with the residual,
-the initial state, the span and the reference solution at its end: the published value of the
-Test Set for IVP Solvers (Mazzia and Magherini, release 2.4, 2008) where the span is the test
-set's (HIRES, OREGO), else scipy's ``solve_ivp(method="Radau", rtol=1e-12)`` computed once
-and stored here (:func:`radau_reference` recomputes it; the test set's values are checked
-against it in tests/test_stiff_controller.py).
+:func:`jaxanm.integrate` solves by implicit Euler, and as ``F(u, u_dot) = u_dot - f(u)``
+(:attr:`Stiff.semi_discrete`) for every time scheme and for IDA.  :func:`problem` returns a
+:class:`Stiff` with the residuals, the initial state, the span and the reference solution at
+its end: the published value of the Test Set for IVP Solvers (Mazzia and Magherini, release
+2.4, 2008) where the span is the test set's (HIRES, OREGO), else scipy's
+``solve_ivp(method="Radau", rtol=1e-12)`` computed once and stored here
+(:func:`radau_reference` recomputes it; the test set's values are checked against it in
+tests/test_stiff_controller.py).
 
 - ``robertson``: Robertson's chemical kinetics (ROBER), rate constants 0.04, 1e4, 3e7.
 - ``vanderpol``: the van der Pol relaxation oscillator ``y'' = mu (1 - y^2) y' - y`` with
@@ -43,6 +46,11 @@ class Stiff:
         """Implicit Euler step residual ``(x - x_old) / dt - f(x)``."""
         return _residual(self.rhs)
 
+    @property
+    def semi_discrete(self):
+        """``jaxanm.SemiDiscrete(F)`` with ``F(u, u_dot, t, params) = u_dot - f(u)``."""
+        return _semi_discrete(self.rhs)
+
 
 @functools.lru_cache(maxsize=None)
 def _residual(rhs):
@@ -53,6 +61,17 @@ def _residual(rhs):
         return (x - x_old) / dt - rhs(x)
 
     return residual
+
+
+@functools.lru_cache(maxsize=None)
+def _semi_discrete(rhs):
+    """The semi-discrete residual of ``rhs``: one object per right-hand side (shared compiled code)."""
+    import jaxanm
+
+    def F(u, u_dot, t, params):
+        return u_dot - rhs(u)
+
+    return jaxanm.SemiDiscrete(F)
 
 
 # Each right-hand side is written as a jaxanm residual is meant to be, on arrays: its linear

@@ -190,6 +190,11 @@ def test_tolerances_of_a_fixed_step_scene_are_not_used():
     ("fsw_small", {"thermal.edge_rows": "flux", "thermal.edge_source": "exponential"}, "needs thermal.edge_rows"),
     ("fsw_small", {"effects": "conduction,tracers"}, "needs ['viscous']"),
     ("fsw_small", {"solver.pade": "true", "solver.order": 2}, "needs order >= 3"),
+    # moving points: a step starts from a state refitted on another cloud, no semi-discrete residual
+    ("fsw_paper", {"time.scheme": "esdirk3"}, "time.scheme"),
+    ("fsw_paper", {"time.scheme": "bdf2"}, "is invalid with the 'lagrangian' effect"),
+    ("fsw_small", {"time.scheme": "bdf3"}, "must be one of euler, bdf2, esdirk3, esdirk4"),
+    ("fsw_small", {"time.dt_max": -1e-3}, "time.dt_max"),
 ])
 def test_formulations_the_model_cannot_take_are_refused(scene, overrides, message):
     """Combinations of options the model does not support, refused at validation as a

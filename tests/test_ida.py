@@ -68,6 +68,27 @@ def test_heat_dae_closed_form():
     assert errs[1] < errs[0] / 10  # 1000x tighter rtol: the error must drop by far more than 10x
 
 
+def heat_semi_discrete(u_all, u_dot, t, p):
+    """The heat DAE above as ``F(u, u_dot, t)`` (unscaled rows), for jaxanm.SemiDiscrete."""
+    u, ud = u_all[:-1], u_dot[:-1]
+    lap = (u[:-2] - 2 * u[1:-1] + u[2:]) / H**2
+    return jnp.concatenate([u[:1], ud[1:-1] - lap, u[-1:], (u_all[-1:] - jnp.sin(t)) * p["c"]])
+
+
+def test_semi_discrete_residual_closed_form():
+    """The same DAE given as jaxanm.SemiDiscrete(F) reaches the closed form within the bound of
+    test_heat_dae_closed_form (20 rtol), and agrees with the step-residual run to 50 rtol (two
+    error-controlled runs of the same DAE, each within 20 rtol of the solution)."""
+    x0, t_out, rtol = heat_exact(0.0), np.array([0.01, 0.05, 0.1]), 1e-7
+    params = {"c": np.float64(1.0)}
+    sol = integrate_ida(jaxanm.SemiDiscrete(heat_semi_discrete), x0, params, t0=0.0, t_out=t_out, rtol=rtol,
+                        atol=rtol)
+    err = max(np.max(np.abs(x - heat_exact(t))) for t, x in zip(sol.ts, sol.xs))
+    assert err < 20 * rtol, err
+    step = integrate_ida(heat_residual, x0, params, t0=0.0, t_out=t_out, rtol=rtol, atol=rtol)
+    assert np.max(np.abs(sol.xs - step.xs)) < 50 * rtol
+
+
 def test_newton_matrix_equals_dense_derivative():
     """The coloured sparse matrix handed to IDA equals dF/dy + cj dF/dy' by dense jacfwd of F.
 

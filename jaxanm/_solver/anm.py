@@ -51,11 +51,12 @@ class _ANMStep(Attempt):
 
     opts: "ANM"
 
-    def run(self, step: int, x_old, t, dt, params):
-        """The accepted state and the residual there (None when not evaluated): ``(x, R(x))``."""
+    def run(self, step: int, x_old, t, dt, params, start=None):
+        """The accepted state and the residual there (None when not evaluated): ``(x, R(x))``;
+        the homotopy starts at ``start`` (default ``x_old``)."""
         P, st = self.problem, self.problem.stats
         args = (x_old, t, dt, params)
-        start = _Start(np.array(x_old, dtype=np.float64))
+        start = _Start(np.array(x_old if start is None else start, dtype=np.float64))
         substeps = 0
         amax = None  # of the previous series in this step (reported if a later one fails)
         while True:

@@ -61,8 +61,12 @@ class StepSolver(abc.ABC):
 
     **The arguments of a step** (the same for every solver): ``state`` the solver's state,
     ``step`` the index of the time step (for messages), ``x_old`` the state at the start of the
-    step, ``t`` the time at its end, ``dt`` its size and ``params`` the residual's parameters;
-    the step solves ``R(x, x_old, t, dt, params) = 0`` for ``x``.
+    step (or the ``z`` of a time scheme's stage), ``t`` the time at its end, ``dt`` its size
+    (a stage's ``gamma h``) and ``params`` the residual's parameters; the step solves
+    ``R(x, x_old, t, dt, params) = 0`` for ``x``.  ``start``, when given, is where the
+    iteration starts instead of ``x_old`` (a time scheme's predictor of the stage); the time
+    loop gives it only with a scheme other than implicit Euler, so a solver written without
+    it serves implicit Euler.
 
     **Who frees a K\\*.**  LU factors are large (on fine clouds one takes most of a run's
     memory), so a step frees the factors of a K* it replaces before it factorises the next
@@ -98,8 +102,10 @@ class StepSolver(abc.ABC):
         return SolverState(problem)
 
     @abc.abstractmethod
-    def step(self, state: SolverState, step: int, x_old, t, dt, params) -> tuple[np.ndarray, SolverState]:
-        """Solve the time step ``R(x, x_old, t, dt, params) = 0`` from ``x_old``: ``(x, new state)``.
+    def step(self, state: SolverState, step: int, x_old, t, dt, params,
+             start=None) -> tuple[np.ndarray, SolverState]:
+        """Solve the time step ``R(x, x_old, t, dt, params) = 0`` from ``x_old`` (or ``start``):
+        ``(x, new state)``.
 
         The arguments are those of every solver (see the class).  ``state``'s K* is handed
         over to the step (freed if the step replaces it) unless it was retained
@@ -193,8 +199,9 @@ class Attempt(abc.ABC):
         self.fact = fact
 
     @abc.abstractmethod
-    def run(self, step: int, x_old, t, dt, params) -> tuple[np.ndarray, np.ndarray | None]:
-        """The accepted state and the residual there, or None when not evaluated: ``(x, R(x))``."""
+    def run(self, step: int, x_old, t, dt, params, start=None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The accepted state and the residual there, or None when not evaluated: ``(x, R(x))``;
+        the iteration starts from ``start`` (default ``x_old``)."""
 
     def factorized(self) -> Factorization:
         """``fact`` at a solve, which the algorithm has factorised (or kept) before solving."""
@@ -217,11 +224,12 @@ class AttemptSolver(StepSolver):
 
     attempt: ClassVar[type[Attempt]]
 
-    def step(self, state: SolverState, step: int, x_old, t, dt, params) -> tuple[np.ndarray, SolverState]:
+    def step(self, state: SolverState, step: int, x_old, t, dt, params,
+             start=None) -> tuple[np.ndarray, SolverState]:
         """One time step by the solver's :class:`Attempt` (see :meth:`StepSolver.step`)."""
         attempt = self.attempt(self, state.problem, state.factorization)
         try:
-            x, residual = attempt.run(step, x_old, t, dt, params)
+            x, residual = attempt.run(step, x_old, t, dt, params, start)
         except StepFailure as failure:
             # the same exception, with the state to retry from attached: re-raise it as it is
             failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None))

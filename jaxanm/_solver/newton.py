@@ -19,11 +19,11 @@ class _NewtonStep(Attempt):
 
     opts: "_NewtonIteration"
 
-    def run(self, step: int, x_old, t, dt, params) -> tuple[np.ndarray, None]:
-        """Newton iterations from ``x_old`` until ``|dx| / |x| <= tol``: the converged iterate
-        (the residual there is not evaluated: None)."""
+    def run(self, step: int, x_old, t, dt, params, start=None) -> tuple[np.ndarray, None]:
+        """Newton iterations from ``x_old`` (or ``start``) until ``|dx| / |x| <= tol``: the
+        converged iterate (the residual there is not evaluated: None)."""
         P, st = self.problem, self.problem.stats
-        x = np.array(x_old, dtype=np.float64)
+        x = np.array(x_old if start is None else start, dtype=np.float64)
         previous = None
         change = np.inf
         for _ in range(self.opts.max_iter):

@@ -130,6 +130,9 @@ def _check_scene(scene) -> None:
             f"after every step depend on K, A, n through the point motion, which the gradient does not "
             f"follow. Calibrate on fixed points: scene.with_overrides({{'effects': {list(fixed)!r}}}) "
             f"(tracers), or drop 'lagrangian'")
+    if scene.time.scheme != "euler":
+        raise InputError(f"scene {scene.name!r} has time.scheme = {scene.time.scheme!r}: the sensitivities are "
+                         "propagated through implicit-Euler steps; calibrate with time.scheme = 'euler'")
     if not scene.probes and not scene.sections:
         raise InputError(f"scene {scene.name!r} has no probes and no sections: nothing to observe; add "
                          f"[[probes]] or [[sections]] to the scene")

@@ -138,12 +138,20 @@ def scene_value(scene, key: str):
 
 def _lagrangian_check(scene) -> list:
     g = scene.geometry
+    refused = []
     if g.layout == "graded":
-        return [("geometry.layout", g.layout,
-                 "'lagrangian' on geometry.layout = 'graded' is not supported yet: the graded cloud is validated on "
-                 "fixed points only (its rezoning and the tool edge sliding past the fine rings are untested); use "
-                 "'tracers' instead of 'lagrangian', or layout 'polar'")]
-    return []
+        refused.append(("geometry.layout", g.layout,
+                        "'lagrangian' on geometry.layout = 'graded' is not supported yet: the graded cloud is "
+                        "validated on fixed points only (its rezoning and the tool edge sliding past the fine rings "
+                        "are untested); use 'tracers' instead of 'lagrangian', or layout 'polar'"))
+    if scene.time.scheme != "euler":
+        refused.append(("time.scheme", scene.time.scheme,
+                        "is invalid with the 'lagrangian' effect: the points move after every step and the state is "
+                        "refitted on the rebuilt stencils, so the state a step starts from belongs to another "
+                        "discretisation and the residual has no semi-discrete form (a multistep or Runge-Kutta "
+                        "scheme would restart at every step); use time.scheme = 'euler', or 'tracers' instead of "
+                        "'lagrangian'"))
+    return refused
 
 
 _LAGRANGIAN = (

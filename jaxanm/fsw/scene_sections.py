@@ -15,6 +15,7 @@ import dataclasses
 import math
 import re
 
+from .. import scheme_names
 from .._solver import make_solver, solver_kinds
 from ..errors import InputError
 
@@ -382,27 +383,40 @@ class Mechanics(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class Time(_Section):
-    """Implicit Euler step ``dt``, end time ``t_end`` (s) and the times at which fields are saved.
+    """Time ``scheme``, step ``dt``, end time ``t_end`` (s) and the times at which fields are saved.
+
+    ``scheme``: ``"euler"`` (implicit Euler, the paper's), ``"bdf2"``, ``"esdirk3"`` or
+    ``"esdirk4"`` (:func:`jaxanm.make_scheme`); the stages of the last three are built from the
+    scene's residual in semi-discrete form, so they need fixed points (the scene refuses them
+    with the ``lagrangian`` effect).
 
     Save times after ``t_end`` are ignored (so a shortened run keeps the scene's list);
     t = 0 and t = t_end are always saved.  ``adaptive = true``: step sizes from a local error
     estimate (:class:`jaxanm.StepController`), ``dt`` the first step's, the local error of the
     field values at the points below ``atol`` times their scale (omega R1 for u and v, T0 for
     T) plus ``rtol`` times their size; a Lagrangian scene also bounds the steps by the point
-    motion (:func:`jaxanm.fsw.lagrangian.motion_dt_max`).  Both tolerances are finite, in
-    ``[0, 1)`` with ``adaptive`` and not both 0 (always ``>= 0``; unused without ``adaptive``).
+    motion (:func:`jaxanm.fsw.lagrangian.motion_dt_max`), and ``dt_max > 0`` bounds them
+    (0: no bound of the scene's own).  Both tolerances are finite, in ``[0, 1)`` with
+    ``adaptive`` and not both 0 (always ``>= 0``; unused without ``adaptive``).
     """
 
     _name = "time"
+    scheme: str = "euler"
     dt: float = 1e-4
     t_end: float = 0.7
     save: tuple[float, ...] = ()
     adaptive: bool = False
     rtol: float = 0.0
     atol: float = 1e-5
+    dt_max: float = 0.0
 
     def _validate(self):
+        _check("time.scheme", self.scheme, self.scheme in scheme_names(),
+               f"must be one of {', '.join(scheme_names())} (implicit Euler, BDF2, Kværnø's ESDIRKs of order 3 "
+               "and 4)")
         self._positive("dt", "t_end")
+        _check("time.dt_max", self.dt_max, self.dt_max >= 0,
+               "must be >= 0 (s): the largest adaptive step, 0 for no bound of the scene's own")
         for name in ("rtol", "atol"):
             value = getattr(self, name)
             _check(f"time.{name}", value, value >= 0, "must be >= 0 (0 leaves its part out of the error test)")

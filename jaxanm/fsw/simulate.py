@@ -4,9 +4,15 @@
 :func:`run` discretises the scene (:func:`~jaxanm.fsw.discretisation.discretise`: cloud, MLS
 stencils, :class:`~jaxanm.fsw.discretisation.Model`), optionally solves the quasi-static start
 flow (:mod:`jaxanm.fsw.start`: by damped Newton or by continuation), and calls :func:`jaxanm.integrate` with the scene's
-:class:`jaxanm.SaveAt`, its step controller and the host hook of :mod:`jaxanm.fsw.lagrangian`
-(records, Lagrangian motion, rezoning) after every accepted step; the hook's state is
-checkpointed with the run.
+:class:`jaxanm.SaveAt`, its step controller, its time scheme and the host hook of
+:mod:`jaxanm.fsw.lagrangian` (records, Lagrangian motion, rezoning) after every accepted step;
+the hook's state is checkpointed with the run.
+
+A scheme other than implicit Euler builds its stages from the model's residual in
+semi-discrete form: on fixed points the FSW step residual depends on the old state only
+through the difference quotients of its MLS values (``dT/dt`` and, with inertia, ``dV/dt``),
+so it is its own stage residual (:class:`jaxanm.SemiDiscrete`, ``step_residual``; the claim
+is checked on the FSW rows in ``tests/test_ida.py``).
 """
 
 from __future__ import annotations
@@ -40,7 +46,8 @@ def step_controller(scene: Scene, model: Model):
     off the field at their new place by ``dt |DV/Dt|`` after each move (2e-3 of omega R1 at
     fsw_paper's dt), which no smaller next step reduces.  Values at the points, not nodal
     parameters: a Lagrangian cloud's parameters jump at every stencil rebuild, its values do
-    not.  Steps are bounded by :func:`motion_dt_max` when the points move.
+    not.  Steps are bounded by :func:`motion_dt_max` when the points move, and by
+    ``time.dt_max`` when it is set.
     """
     tm = scene.time
     if not tm.adaptive:
@@ -49,7 +56,8 @@ def step_controller(scene: Scene, model: Model):
     measured = [fields.index("T")] if "T" in fields else [fields.index(f) for f in ("u", "v")]
     scale = model.scale().reshape(len(fields), -1)[measured].ravel()
     return jaxanm.StepController(
-        rtol=tm.rtol, atol=tm.atol, dt_max=motion_dt_max(scene) if model.effects.lagrangian else math.inf,
+        rtol=tm.rtol, atol=tm.atol,
+        dt_max=min(motion_dt_max(scene) if model.effects.lagrangian else math.inf, tm.dt_max or math.inf),
         error_map=lambda x, p: model.values(x, p["st"])[:, measured].T.ravel(), error_scale=scale)
 
 
@@ -127,7 +135,10 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         (also on :class:`jaxanm.StepFailure`).
     """
     solver = scene.solver.make() if solver is None else solver
+    scheme = jaxanm.make_scheme(scene.time.scheme)  # the scene refuses one its points cannot serve
     _, stencils, model, params, x0 = discretise(scene)
+    # the FSW step residual on fixed points is its own stage residual (module docstring)
+    residual = model.residual if scheme.one_step else jaxanm.SemiDiscrete(step_residual=model.residual)
     initial, start = None, None
     resuming = resume and checkpoint is not None and os.path.exists(checkpoint)
     if scene.mechanics.start in _STARTS and not resuming:  # a resumed run's state is in its checkpoint
@@ -149,11 +160,9 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         if callback is not None:
             callback(t, stats)
 
-    host = None
-    if checkpoint is not None:
-        host = _host_state(scene, recorder, {"checkpoint_every": int(checkpoint_every)})
+    host = None if checkpoint is None else _host_state(scene, recorder, {"checkpoint_every": int(checkpoint_every)})
     try:
-        sol = jaxanm.integrate(model.residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver,
+        sol = jaxanm.integrate(residual, x0, params, t0=0.0, t1=tm.t_end, dt=tm.dt, solver=solver, scheme=scheme,
                                scale=model.scale(), jacobian="sparse", sparsity=model.sparsity,
                                saveat=saveat, after_step=recorder.after_step,
                                progress=progress, callback=step_done, checkpoint=checkpoint,
