@@ -51,7 +51,7 @@ FSW_IMPORTS = {
     "compare": set(),
     "energy": {"scene", "geometry", "physics", "discretisation"},
     "mass_flux": {"energy"},
-    "process": {"energy", "mass_flux"},
+    "process": {"scene", "energy", "mass_flux"},
     "manufactured": {"discretisation", "geometry", "physics"},
     "calibration": {"scene", "geometry", "physics", "discretisation", "record"},
     "ida_scene": {"scene", "geometry", "discretisation", "record"},

@@ -15,6 +15,7 @@ import numpy as np
 
 from .energy import dissipated_power, fields_at, tool_torque
 from .mass_flux import flux_table, largest_error
+from .scene import Scene
 
 __all__ = ["PROBE_OFFSET", "process_summary"]
 
@@ -25,7 +26,8 @@ PROBE_OFFSET = 7.5e-4
 def process_summary(result) -> dict | None:
     """``{"t", "peak_T", "torque", "power", "dissipation", "advancing_minus_retreating",
     "trailing_minus_leading", "mass_flux_error"}`` of a run whose tool travels (``traverse``),
-    at its last saved time ``t`` (SI units; torque and powers per unit thickness), else None.
+    at its last saved time ``t`` (SI units; torque and powers per unit thickness), else None (also
+    for a result without a :class:`~jaxanm.fsw.scene.Scene`).
 
     ``power`` is the torque times omega (:func:`jaxanm.fsw.energy.tool_torque`),
     ``dissipation`` the plastic dissipation ``int 3 mu epsbar^2`` of the plate
@@ -34,8 +36,8 @@ def process_summary(result) -> dict | None:
     through the sections and circles of :func:`jaxanm.fsw.mass_flux.flux_table` over the saved
     times, in units of the through-flow ``2 R2 U`` (sections) and ``2 r U`` (circles).
     """
-    scene = result.scene
-    if scene is None or not scene.has("traverse") or scene.tool.traverse_speed <= 0 or len(result.t) < 1:
+    scene = getattr(result, "scene", None)
+    if not isinstance(scene, Scene) or not scene.has("traverse") or scene.tool.traverse_speed <= 0 or len(result.t) < 1:
         return None
     g = scene.geometry
     r = g.R1 + PROBE_OFFSET
