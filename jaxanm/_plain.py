@@ -5,7 +5,8 @@ structure refers to by key; :func:`from_plain` rebuilds the value.  Only these a
 
 - ``None``, ``bool``, ``int``, ``float``, ``str`` as JSON values (a float's ``repr`` reads back
   to the same bits; ``inf`` and ``nan`` as JSON's ``Infinity`` / ``NaN``);
-- ``list`` as a JSON array; ``tuple`` as ``{"$tuple": [...]}``;
+- ``list`` as a JSON array, but a list of numpy scalars of one type (a probe's history) as
+  ``{"$scalars": key}``, one array read back as that list; ``tuple`` as ``{"$tuple": [...]}``;
 - ``dict`` as a JSON object when its keys are strings not starting with ``$``, otherwise as
   ``{"$items": [[key, value], ...]}``;
 - numpy (or JAX) arrays as ``{"$array": key}`` (not of object dtype: they are read with
@@ -73,10 +74,11 @@ def to_plain(value: Any, arrays: dict[str, np.ndarray], where: str = "$"):
         array = np.asarray(value)
         if array.dtype.hasobject:
             raise TypeError(f"{where}: an array of objects cannot be stored (it would need a pickle)")
-        key = f"a{len(arrays)}"
-        arrays[key] = array
-        return {"$array": key}
+        return {"$array": _array(array, arrays)}
     if type(value) is list:
+        if value and isinstance(value[0], np.generic) and value[0].dtype.kind in _SCALAR_KINDS \
+                and all(type(v) is type(value[0]) for v in value):
+            return {"$scalars": _array(np.array(value), arrays)}
         return [to_plain(v, arrays, f"{where}[{i}]") for i, v in enumerate(value)]
     if type(value) is tuple:
         return {"$tuple": [to_plain(v, arrays, f"{where}[{i}]") for i, v in enumerate(value)]}
@@ -86,6 +88,13 @@ def to_plain(value: Any, arrays: dict[str, np.ndarray], where: str = "$"):
         return {"$items": [[to_plain(k, arrays, f"{where}<key>"), to_plain(v, arrays, f"{where}[{k!r}]")]
                            for k, v in value.items()]}
     return _special_to_plain(value, arrays, where)
+
+
+def _array(array: np.ndarray, arrays: dict) -> str:
+    """The key of ``array``, added to ``arrays``."""
+    key = f"a{len(arrays)}"
+    arrays[key] = array
+    return key
 
 
 def _special_to_plain(value, arrays: dict, where: str):
@@ -124,10 +133,15 @@ def from_plain(structure, arrays) -> Any:
 def _marked(marker: str, structure: dict, arrays):
     """The value of a ``{"$marker": ...}`` entry (:func:`from_plain`)."""
     content = structure[marker]
-    if marker == "$array":
+    if marker in ("$array", "$scalars"):
         if content not in arrays:
             raise PlainDataError(f"the structure refers to array {content!r}, which the file lacks")
-        return arrays[content]
+        array = arrays[content]
+        if marker == "$array":
+            return array
+        if array.ndim != 1 or array.dtype.kind not in _SCALAR_KINDS:
+            raise PlainDataError(f"array {content!r} of dtype {array.dtype} cannot hold a list of scalars")
+        return list(array)
     if marker == "$tuple":
         return tuple(from_plain(v, arrays) for v in content)
     if marker == "$items":

@@ -89,6 +89,8 @@ def test_every_registered_type_and_plain_value_round_trips_exactly(tmp_path):
         "odd keys": {1: "int", (2, "a"): "tuple", "$dollar": "escaped", 2.5: None},
         "scalars": [np.float64(1 / 3), np.float32(0.1), np.int64(-7), np.int32(3), np.bool_(True),
                     np.complex128(1 - 2j), np.uint8(255)],
+        "history": [np.float64(1 / 3), np.float64(-0.0), np.float64(np.nan)],  # one type: stored as one array
+        "mixed": [np.float64(1.5), 1.5],
         "arrays": [np.arange(6.0).reshape(2, 3) / 7, np.arange(4, dtype=np.int32), np.array(2.0),
                    np.zeros((0, 3)), np.array([1 + 1j]), np.array([True, False])],
         "sparse": [_matrix(), _matrix().tocsr(), scipy.sparse.csc_matrix((3, 3))],
@@ -112,12 +114,14 @@ def test_every_registered_type_and_plain_value_round_trips_exactly(tmp_path):
 
 def test_the_file_is_an_npz_of_plain_arrays_and_json(tmp_path):
     path = tmp_path / "c.ckpt"
-    write_atomic(path, {"x": np.ones(3), "stats": jaxanm.Stats()})
+    write_atomic(path, {"x": np.ones(3), "stats": jaxanm.Stats(), "probe": [np.float64(1.0), np.float64(2.0)]})
     with np.load(path, allow_pickle=False) as archive:
-        assert sorted(archive.files) == ["a0", STRUCTURE_KEY]
+        assert sorted(archive.files) == ["a0", "a1", STRUCTURE_KEY]
         header = json.loads(archive[STRUCTURE_KEY].tobytes())
+        assert archive["a1"].tolist() == [1.0, 2.0]
     assert header["kind"] == "jaxanm checkpoint" and header["format"] == FORMAT_VERSION
     assert header["payload"]["x"] == {"$array": "a0"} and header["payload"]["stats"]["$object"] == "Stats"
+    assert header["payload"]["probe"] == {"$scalars": "a1"}  # a history of numpy scalars: one array
 
 
 def test_what_cannot_be_stored_is_refused_when_writing(tmp_path):
