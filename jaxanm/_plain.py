@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+import jax
 import numpy as np
 
 _STORED: dict[str, type] = {}
@@ -70,7 +71,7 @@ def to_plain(value: Any, arrays: dict[str, np.ndarray], where: str = "$"):
         return {"$scalar": value.dtype.str, "hex": value.tobytes().hex()}
     if type(value) in (bool, int, float, str) or value is None:
         return value
-    if isinstance(value, np.ndarray) or (hasattr(value, "__array__") and type(value).__module__.startswith("jax")):
+    if isinstance(value, (np.ndarray, jax.Array)):
         array = np.asarray(value)
         if array.dtype.hasobject:
             raise TypeError(f"{where}: an array of objects cannot be stored (it would need a pickle)")

@@ -141,7 +141,8 @@ def _header(path, magic: bytes) -> dict:
             header["payload"] = from_plain(header["payload"], arrays)
             if not isinstance(header["payload"], dict):
                 raise PlainDataError("the payload is not a dict")
-    except (PlainDataError, OSError, EOFError, KeyError, TypeError, ValueError, zipfile.BadZipFile) as exc:
+    except (PlainDataError, OSError, EOFError, KeyError, TypeError, ValueError, RecursionError,
+            zipfile.BadZipFile) as exc:
         raise InputError(f"{path} is not a readable jaxanm checkpoint ({type(exc).__name__}: {exc}); it is truncated, "
                          "damaged or no checkpoint: start the run afresh, or resume from an intact copy") from exc
     return header
