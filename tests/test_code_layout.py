@@ -350,10 +350,7 @@ def test_the_core_does_not_import_the_facade():
 
 CHECKS = "jaxanm._checks"
 INLINE_CHECKS_TO_MOVE = {
-    "jaxanm/_run_inputs.py": (1, "sparse rewrites it: t0, t1, dt by real()"),
-    "jaxanm/_step_control.py": (2, "schemes rewrites it: the controller's tolerances and bounds by real()"),
     "jaxanm/fsw/scene_sections.py": (2, "weld rewrites it: the scene converters' real and integer checks"),
-    "jaxanm/ida.py": (5, "schemes rewrites it: t0, rtol, h0, ic_dt, max_steps"),
 }
 """Files that still check a scalar's type inline, with how many such checks, each in a file
 another change is rewriting; emptied once those changes have landed."""
