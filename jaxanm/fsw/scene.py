@@ -238,7 +238,7 @@ class Scene:
 
     def to_dict(self) -> dict:
         """Plain dictionary in the TOML layout (round-trips through :meth:`from_dict`)."""
-        d = {"name": self.name, "effects": list(self.effects)}
+        d: dict[str, object] = {"name": self.name, "effects": list(self.effects)}
         for key in _SECTIONS:
             d[key] = _section_dict(getattr(self, key))
         d["probes"] = [_section_dict(p) for p in self.probes]

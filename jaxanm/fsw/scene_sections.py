@@ -497,8 +497,16 @@ class SolverSpec(_Section):
 
 _REGISTERED_KIND = {scene_kind: kind for kind, scene_kind in SOLVER_NAMES.items()}
 """``solver.kind`` of a scene -> the registered kind (:data:`SOLVER_NAMES` inverted)."""
-SOLVER_OPTIONS = {kind: tuple(f.name for f in dataclasses.fields(SolverSpec)
-                              if f.name in {g.name for g in dataclasses.fields(make_solver(kind))})
+
+
+def _solver_fields(kind: str) -> set:
+    """The option names of the registered solver ``kind`` (every step solver is a dataclass)."""
+    solver = make_solver(kind)
+    assert dataclasses.is_dataclass(solver)
+    return {f.name for f in dataclasses.fields(solver)}
+
+
+SOLVER_OPTIONS = {kind: tuple(f.name for f in dataclasses.fields(SolverSpec) if f.name in _solver_fields(kind))
                   for kind in SOLVER_NAMES}
 """For each registered solver kind, the ``solver.*`` fields of a scene its solver takes (in the
 scene's order): what :meth:`SolverSpec.make` passes on, and the settings a sweep's ``[[solvers]]``
