@@ -4,7 +4,6 @@ together, float64 parameters placed on the device, and the tangent's kind and pa
 
 from __future__ import annotations
 
-import math
 import warnings
 
 import jax
@@ -12,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
+from ._checks import real
 from ._constant_step import ConstantStepSize
 from ._saveat import SaveAt
 from ._scheme import ImplicitEuler, SemiDiscrete, TimeScheme, stage_residual
@@ -34,8 +34,7 @@ def check_run_inputs(x0, t0, t1, dt, solver, scale, jacobian, saveat=None, contr
     if not np.all(np.isfinite(x0)):
         raise InputError(f"x0 has {int(np.sum(~np.isfinite(x0)))} non-finite entries; give a finite initial state")
     for name, v in (("t0", t0), ("t1", t1), ("dt", dt)):
-        if not (isinstance(v, (int, float, np.floating, np.integer)) and math.isfinite(v)):
-            raise InputError(f"{name} must be a finite number, got {v!r}")
+        real(name, v)
     if not dt > 0:
         raise InputError(f"dt must be > 0, got {dt!r}")
     if not t1 > t0:

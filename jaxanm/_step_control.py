@@ -52,6 +52,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from ._checks import real
 from ._scheme import TimeScheme
 from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
 from .errors import InputError, StepFailure
@@ -134,9 +135,7 @@ class StepController(StepSizeController):
 
     def __post_init__(self):
         for name in ("rtol", "atol"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise InputError(f"StepController.{name} must be a finite number >= 0, got {v!r}")
+            real(f"StepController.{name}", getattr(self, name), 0.0)
         if self.rtol == 0 and self.atol == 0:
             raise InputError("StepController needs rtol > 0 or atol > 0 (both 0 accepts no step)")
         if not (0 <= self.dt_min < self.dt_max):
@@ -146,9 +145,7 @@ class StepController(StepSizeController):
             raise InputError("StepController needs 0 < safety <= 1 and 0 < shrink < 1 < grow, got "
                              f"safety={self.safety!r}, shrink={self.shrink!r}, grow={self.grow!r}")
         for name in ("hold", "refactor_ratio"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and not math.isnan(v) and v >= 1):
-                raise InputError(f"StepController.{name} must be a number >= 1 (1: off), got {v!r}")
+            real(f"StepController.{name}", getattr(self, name), 1.0, finite=False, hint="1: off")
         if self.error_map is not None and not callable(self.error_map):
             raise InputError("StepController.error_map must be a callable (x, params) -> array")
         if self.error_scale is not None and not np.all(np.isfinite(self.error_scale)

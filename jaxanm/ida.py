@@ -55,7 +55,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import time
 import warnings
 from typing import Callable
@@ -65,6 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
+from ._checks import integer, positive, real
 from ._extras import require
 from ._run_inputs import params_float64
 from ._scheme import SemiDiscrete, stage_residual
@@ -199,15 +199,13 @@ def _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps):
         raise InputError(f"x0 must be a non-empty 1-D array of unknowns, got shape {x0.shape}; flatten your state")
     if not np.all(np.isfinite(x0)):
         raise InputError(f"x0 has {int(np.sum(~np.isfinite(x0)))} non-finite entries; give a finite initial state")
-    if not (isinstance(t0, (int, float, np.floating, np.integer)) and math.isfinite(t0)):
-        raise InputError(f"t0 must be a finite number, got {t0!r}")
+    real("t0", t0)
     t_out = np.atleast_1d(np.asarray(t_out, dtype=np.float64))
     if t_out.ndim != 1 or t_out.size == 0 or not np.all(np.isfinite(t_out)):
         raise InputError(f"t_out must be a non-empty 1-D array of finite output times, got {t_out!r}")
     if not (np.all(np.diff(t_out) > 0) and t_out[0] > t0):
         raise InputError(f"t_out must increase strictly and start after t0 = {t0!r}; got {t_out!r}")
-    if not (isinstance(rtol, (int, float, np.floating)) and 0 < rtol < 1):
-        raise InputError(f"rtol must be a number in (0, 1) (IDA recommends 1e-15 <= rtol <= 1e-3), got {rtol!r}")
+    real("rtol", rtol, 0.0, 1.0, open_low=True, open_high=True, hint="IDA recommends 1e-15 <= rtol <= 1e-3")
     atol_a = np.asarray(atol, dtype=np.float64)
     if (atol_a.ndim > 1 or (atol_a.ndim == 1 and atol_a.size != x0.size)
             or not np.all(np.isfinite(atol_a) & (atol_a >= 0))):
@@ -220,20 +218,17 @@ def _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps):
         raise InputError("scale must be positive and finite (a characteristic magnitude per unknown)")
     span = float(t_out[-1] - t0)
     h0 = 1e-3 * span if h0 is None else h0
-    if not (isinstance(h0, (int, float, np.floating)) and math.isfinite(h0) and h0 > 0):
-        raise InputError(f"h0 (the dt of the DAE residual's row scalings) must be a positive number, got {h0!r}")
+    positive("h0", h0, hint="the dt of the DAE residual's row scalings")
     ic_dt = 1e-6 * span if ic_dt is None else ic_dt
     if yp0 is None:
-        if not (isinstance(ic_dt, (int, float, np.floating)) and math.isfinite(ic_dt)
-                and 0 < 2 * ic_dt < t_out[0] - t0):
+        if not 0 < 2 * positive("ic_dt", ic_dt) < t_out[0] - t0:
             raise InputError(f"ic_dt must be positive with t0 + 2 ic_dt < the first output time {t_out[0]!r} "
                              f"(the consistent start takes two implicit-Euler steps of ic_dt), got {ic_dt!r}")
     else:
         yp0 = np.asarray(yp0, dtype=np.float64)
         if yp0.shape != x0.shape or not np.all(np.isfinite(yp0)):
             raise InputError(f"yp0 must be a finite array of the shape of x0 {x0.shape}, got shape {yp0.shape}")
-    if not (isinstance(max_steps, int) and max_steps >= 1):
-        raise InputError(f"max_steps must be an integer >= 1, got {max_steps!r}")
+    integer("max_steps", max_steps, 1)
     return x0, t_out, atol_a, scale, float(h0), yp0, ic_dt
 
 

@@ -278,11 +278,6 @@ def test_the_cycle_finder_finds_a_cycle(tmp_path):
 
 
 PRIVATE_IMPORTS_TO_MOVE = {
-    ("jaxanm/fsw/scene.py", "_check"):
-        "fsw/scene*.py are being rewritten (weld): the scene's value checks become jaxanm._checks calls",
-    ("jaxanm/fsw/scene.py", "_as_str"): "as _check (weld): a public converter of scene_sections",
-    ("jaxanm/fsw/scene.py", "_as_strs"): "as _check (weld): a public converter of scene_sections",
-    ("jaxanm/fsw/scene.py", "_NAME_CHARS"): "as _check (weld): a public constant of scene_sections",
 }
 """Private names still imported across modules, each in a file another change is rewriting
 (the reason says what replaces the import); emptied once those changes have landed."""
@@ -314,8 +309,6 @@ def test_no_private_name_imported_from_another_module():
 
 
 FACADE_BYPASSES_TO_MOVE = {
-    ("jaxanm.fsw.scene_sections", "jaxanm._solver"): "weld's file (its solver settings are being "
-                                                     "reworked): make_solver, solver_kinds from jaxanm.internal",
 }
 """Subpackage modules that still import a private core module directly, each in a file
 another change is rewriting; emptied once those changes have landed."""
@@ -357,10 +350,7 @@ def test_the_core_does_not_import_the_facade():
 
 CHECKS = "jaxanm._checks"
 INLINE_CHECKS_TO_MOVE = {
-    "jaxanm/_run_inputs.py": (1, "sparse rewrites it: t0, t1, dt by real()"),
-    "jaxanm/_step_control.py": (2, "schemes rewrites it: the controller's tolerances and bounds by real()"),
     "jaxanm/fsw/scene_sections.py": (2, "weld rewrites it: the scene converters' real and integer checks"),
-    "jaxanm/ida.py": (5, "schemes rewrites it: t0, rtol, h0, ic_dt, max_steps"),
 }
 """Files that still check a scalar's type inline, with how many such checks, each in a file
 another change is rewriting; emptied once those changes have landed."""

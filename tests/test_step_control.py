@@ -115,7 +115,7 @@ def test_error_map_measures_other_quantities():
 
 
 @pytest.mark.parametrize("kw, match", [
-    ({"rtol": -1.0}, "rtol must be a finite number >= 0"),
+    ({"rtol": -1.0}, r"StepController.rtol must be a number >= 0"),
     ({"rtol": 0.0, "atol": 0.0}, "rtol > 0 or atol > 0"),
     ({"dt_min": 1.0, "dt_max": 0.5}, "dt_min < dt_max"),
     ({"shrink": 1.5}, "shrink < 1 < grow"),

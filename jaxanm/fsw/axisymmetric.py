@@ -388,7 +388,12 @@ class _Record:
 
     def __init__(self, cond: _Conduction, flow: _QuasiStaticFlow | None, plate_edges: np.ndarray, T0: float):
         self.cond, self.flow, self.plate_edges, self.T0 = cond, flow, plate_edges, T0
-        self.T, self.R1, self.R2, self.M, self.v, self.E = [], [], [], [], [], []
+        self.T: list = []
+        self.R1: list = []
+        self.R2: list = []
+        self.M: list = []
+        self.v: list = []
+        self.E: list = []
 
     def __call__(self, T):
         """Record the state ``T`` of an output step."""

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse
 
-from .. import mls
+from .. import Factorization, mls
 from ..checkpoint import stored_type
 from ..internal import sparse_lu
 from .effects import CONSTANTS, REGISTRY, Effects, scene_value
@@ -99,7 +99,7 @@ class Model:
         """
         sc, kind = self.scene, self.cloud.kind
         sticking = rigid(kind)
-        omega = sc.tool.omega
+        omega = np.full(len(kind), sc.tool.omega)
         if self.effects.slip:
             omega = np.where(kind == PLATE_EDGE, sc.tool.contact_state, 1.0) * omega
         rest_u = -sc.tool.traverse_speed if self.effects.traverse else 0.0
@@ -237,8 +237,8 @@ class Refit:
     def __init__(self, tol: float = 1e-15, max_iter: int = 20, refresh: int = 7):
         self.tol, self.max_iter, self.refresh = tol, max_iter, refresh
         self.matrix = None
-        self._lu = None
-        self.iterations = []
+        self._lu: Factorization | None = None
+        self.iterations: list[int] = []
         self.factorizations = 0
 
     STATE = ("tol", "max_iter", "refresh", "matrix", "iterations", "factorizations")
@@ -283,6 +283,7 @@ class Refit:
                 last = size
         self._factorise(stencils)
         self.iterations.append(0)
+        assert self._lu is not None  # just factorised
         return self._lu.solve(values)
 
 

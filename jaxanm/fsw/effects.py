@@ -297,6 +297,7 @@ class Effects:
     """
 
     __slots__ = ("names",)
+    names: frozenset[str]
 
     def __init__(self, names: Iterable[str] = ()):
         names = frozenset(names)

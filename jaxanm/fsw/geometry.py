@@ -117,10 +117,10 @@ def _gaps(length: float, g: Geometry, centre: bool) -> np.ndarray:
     # drop the last gap if the total then comes closer to the length
     if len(gaps) > fine + 1 and abs(total - gaps[-1] - length) < abs(total - length):
         total -= gaps.pop()
-    gaps = np.array(gaps)
-    graded = min(fine, len(gaps) - 1)
-    gaps[graded:] *= (length - gaps[:graded].sum()) / gaps[graded:].sum()
-    return gaps
+    widths = np.array(gaps)
+    graded = min(fine, len(widths) - 1)
+    widths[graded:] *= (length - widths[:graded].sum()) / widths[graded:].sum()
+    return widths
 
 
 def _graded_rings(g: Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

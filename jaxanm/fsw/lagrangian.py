@@ -174,7 +174,7 @@ class RunRecorder(Recorder):
         self.tracer_neighbours = neighbour_list(scene.geometry)
         self.refit = Refit()
         # the tracers' polar velocity of the last step (advect's carried; None: not yet moved)
-        self.tracer_velocity = None
+        self.tracer_velocity: np.ndarray | None = None
 
     def _advected(self, particles: np.ndarray, x, dt: float) -> np.ndarray:
         """Tracers moved over dt: those started on the tool or its edge turn with the tool by
@@ -212,9 +212,11 @@ class RunRecorder(Recorder):
         free[out] = np.stack([np.sqrt(R2 * R2 - y * y), y], axis=1)
         inflow = np.broadcast_to([-U, 0.0], free[out].shape)
         away = np.hypot(free[out, 0], free[out, 1]) > 0
-        carried = self.tracer_velocity[out]
+        tracer_velocity = self.tracer_velocity
+        assert tracer_velocity is not None  # set by the advection that moved these tracers out
+        carried = tracer_velocity[out]
         carried[away] = _polar(free[out][away], inflow[away])
-        self.tracer_velocity[out] = carried
+        tracer_velocity[out] = carried
         return free
 
     def _marker_values(self, node_values: dict, at_free: dict) -> dict:

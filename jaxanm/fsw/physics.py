@@ -108,7 +108,7 @@ def viscosity(T, er2, K, A, n):
     return K / 3.0 * T ** A * er2 ** (0.5 * (n - 1.0))
 
 
-def complete_fields(values: dict, n: int, T0, xp=np) -> dict:
+def complete_fields(values: dict, n: int | tuple, T0, xp=np) -> dict:
     """``{"u", "v", "T"}`` at n points (or of array shape n) from the fields a scene has
     (``values``), those it lacks filled as the model holds them: V = 0 without ``viscous``,
     T = T0 without ``conduction`` (``xp``: numpy, or ``jax.numpy`` inside traced code)."""

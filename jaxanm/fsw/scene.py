@@ -33,7 +33,6 @@ from pathlib import Path
 from ..errors import did_you_mean
 from .effects import EFFECTS, REGISTRY, scene_value
 from .scene_sections import (  # noqa: F401 - re-exported: the sections are part of this module's API
-    _NAME_CHARS,
     EDGE_ROWS,
     EDGE_SOURCES,
     LAYOUTS,
@@ -41,6 +40,7 @@ from .scene_sections import (  # noqa: F401 - re-exported: the sections are part
     MAX_POINTS,
     MAX_SAMPLES,
     MAX_STEPS,
+    NAME_CHARS,
     SOLVER_KINDS,
     SOLVER_NAMES,
     SOLVER_OPTIONS,
@@ -55,9 +55,9 @@ from .scene_sections import (  # noqa: F401 - re-exported: the sections are part
     Thermal,
     Time,
     Tool,
-    _as_str,
-    _as_strs,
-    _check,
+    as_str,
+    as_strs,
+    check,
 )
 
 __all__ = [
@@ -120,21 +120,21 @@ class Scene:
     sections: tuple[Section, ...] = ()
 
     def __post_init__(self):
-        object.__setattr__(self, "name", _as_str("name", self.name))
-        _check("name", self.name, 0 < len(self.name) <= 100 and set(self.name) <= _NAME_CHARS
+        object.__setattr__(self, "name", as_str("name", self.name))
+        check("name", self.name, 0 < len(self.name) <= 100 and set(self.name) <= NAME_CHARS
                and not self.name.startswith("."),
                "must be 1-100 letters, digits or _-.+ not starting with '.' (it names the output directory)")
-        effects = _as_strs("effects", self.effects)
+        effects = as_strs("effects", self.effects)
         object.__setattr__(self, "effects", effects)
         for key, cls in _SECTIONS.items():
-            _check(key, getattr(self, key), isinstance(getattr(self, key), cls),
+            check(key, getattr(self, key), isinstance(getattr(self, key), cls),
                    f"expected a jaxanm.fsw.scene.{cls.__name__}")
         for key, cls in (("probes", Probe), ("sections", Section)):
-            _check(key, getattr(self, key), isinstance(getattr(self, key), (list, tuple)),
+            check(key, getattr(self, key), isinstance(getattr(self, key), (list, tuple)),
                    f"expected a list of jaxanm.fsw.scene.{cls.__name__}")
             items = tuple(getattr(self, key))
             for i, item in enumerate(items):
-                _check(f"{key}[{i}]", item, isinstance(item, cls), f"expected a {cls.__name__}")
+                check(f"{key}[{i}]", item, isinstance(item, cls), f"expected a {cls.__name__}")
             object.__setattr__(self, key, items)
         self._validate_effects()
         self._validate_places()
@@ -142,58 +142,58 @@ class Scene:
     def _validate_effects(self):
         """Names, exclusions and requirements of the listed effects, their parameters, their checks
         (all read from their records, :data:`jaxanm.fsw.effects.REGISTRY`)."""
-        _check("effects", self.effects, len(self.effects) > 0,
+        check("effects", self.effects, len(self.effects) > 0,
                f"list at least one effect of {EFFECTS}")
         for e in self.effects:
-            _check("effects", e, e in EFFECTS, f"unknown effect; known effects are {EFFECTS}")
-        _check("effects", self.effects, len(set(self.effects)) == len(self.effects),
+            check("effects", e, e in EFFECTS, f"unknown effect; known effects are {EFFECTS}")
+        check("effects", self.effects, len(set(self.effects)) == len(self.effects),
                "an effect is listed twice")
         have = set(self.effects)
         creating = [e for e in EFFECTS if "unknowns" in REGISTRY[e].roles]
         made = ", ".join(f"{e!r} {REGISTRY[e].fields}" for e in creating)
-        _check("effects", self.effects, bool(have & set(creating)),
+        check("effects", self.effects, bool(have & set(creating)),
                f"list one of {creating} (they create the unknowns: {made}): without them the scene has no unknowns")
         for e in self.effects:
             for other, why in REGISTRY[e].excludes:
-                _check("effects", self.effects, other not in have, why)
+                check("effects", self.effects, other not in have, why)
         for e in self.effects:
             missing = [r for r in REGISTRY[e].requires if r not in have]
-            _check("effects", self.effects, not missing,
+            check("effects", self.effects, not missing,
                    f"effect {e!r} needs {missing} (add them or drop {e!r})")
-        _check("mechanics.start", self.mechanics.start, self.mechanics.start == "rest" or "viscous" in have,
+        check("mechanics.start", self.mechanics.start, self.mechanics.start == "rest" or "viscous" in have,
                "a start other than 'rest' needs the 'viscous' effect (the flow it solves); use 'rest'")
         self._validate_parameters(have)
         for e in self.effects:
             for key, value, allowed in (REGISTRY[e].check(self) if REGISTRY[e].check else ()):
-                _check(key, value, False, allowed)
+                check(key, value, False, allowed)
 
     def _validate_parameters(self, have: set):
         """Each effect's parameters within their ranges, and at their defaults unless the effect is listed."""
         for name, effect in REGISTRY.items():
             for par in effect.parameters:
                 value, default = scene_value(self, par.key), _default(par.key)
-                _check(par.key, value, par.low <= value <= par.high,
+                check(par.key, value, par.low <= value <= par.high,
                        f"must be in [{par.low:g}, {par.high:g}] ({par.unit}): {par.doc}")
-                _check(par.key, value, value == default or name in have,
+                check(par.key, value, value == default or name in have,
                        f"differs from its default {default!r} but the scene does not list the {name!r} effect: add "
                        f"{name!r} to effects{_and_requirements(name)}, or leave {par.key} = {default!r}")
 
     def _validate_places(self):
         g = self.geometry
         names = [p.name for p in self.probes]
-        _check("probes", names, len(set(names)) == len(names), "probe names must be unique")
+        check("probes", names, len(set(names)) == len(names), "probe names must be unique")
         for i, p in enumerate(self.probes):
             r = math.hypot(p.x, p.y)
             where = "inside the tool" if r < g.R1 else "on the tool edge" if r == g.R1 else "outside the plate"
-            _check(f"probes[{i}] ({p.name}).x, y", (p.x, p.y), g.R1 < r < g.R2,
+            check(f"probes[{i}] ({p.name}).x, y", (p.x, p.y), g.R1 < r < g.R2,
                    f"must lie in the plate, geometry.R1 = {g.R1} < r < geometry.R2 = {g.R2}, but r = "
                    f"sqrt(x^2 + y^2) = {r:.6g} is {where}: move the registration point into the plate")
         names = [s.name for s in self.sections]
-        _check("sections", names, len(set(names)) == len(names), "section names must be unique")
+        check("sections", names, len(set(names)) == len(names), "section names must be unique")
         for i, s in enumerate(self.sections):
             for key in ("start", "end"):
                 pt = getattr(s, key)
-                _check(f"sections[{i}].{key}", pt, math.hypot(*pt) <= g.R2 * (1 + 1e-12),
+                check(f"sections[{i}].{key}", pt, math.hypot(*pt) <= g.R2 * (1 + 1e-12),
                        f"must lie in the disc r <= geometry.R2 = {g.R2}")
 
     @property
@@ -221,12 +221,12 @@ class Scene:
         values are parsed to the field's type (``"2e16"``, ``"conduction,robin"``).  The result
         is validated as a whole; an unknown key or bad value raises :class:`SceneError`.
         """
-        _check("overrides", overrides, isinstance(overrides, dict), "expected a dict {'section.field': value}")
+        check("overrides", overrides, isinstance(overrides, dict), "expected a dict {'section.field': value}")
         top: dict = {}
         per_section: dict = {}
         allowed = override_keys()
         for key, value in overrides.items():
-            _check("override key", key, key in allowed, f"known keys are {', '.join(allowed)}")
+            check("override key", key, key in allowed, f"known keys are {', '.join(allowed)}")
             if "." in key:
                 sec, fld = key.split(".", 1)
                 per_section.setdefault(sec, {})[fld] = value
@@ -238,7 +238,7 @@ class Scene:
 
     def to_dict(self) -> dict:
         """Plain dictionary in the TOML layout (round-trips through :meth:`from_dict`)."""
-        d = {"name": self.name, "effects": list(self.effects)}
+        d: dict[str, object] = {"name": self.name, "effects": list(self.effects)}
         for key in _SECTIONS:
             d[key] = _section_dict(getattr(self, key))
         d["probes"] = [_section_dict(p) for p in self.probes]
@@ -248,10 +248,10 @@ class Scene:
     @classmethod
     def from_dict(cls, data: dict, source: str = "scene") -> "Scene":
         """Scene from a dictionary in the TOML layout; unknown tables or keys raise :class:`SceneError`."""
-        _check(source, data, isinstance(data, dict), "expected a table (dict) of scene sections")
+        check(source, data, isinstance(data, dict), "expected a table (dict) of scene sections")
         known = {"name", "effects", "probes", "sections", *_SECTIONS}
         for key in data:
-            _check(f"{source}: top-level key", key, key in known, f"known keys are {sorted(known)}")
+            check(f"{source}: top-level key", key, key in known, f"known keys are {sorted(known)}")
         kwargs = {k: data[k] for k in ("name", "effects") if k in data}
         for key, sec in _SECTIONS.items():
             if key in data:
@@ -259,7 +259,7 @@ class Scene:
         for key, sec in (("probes", Probe), ("sections", Section)):
             if key in data:
                 items = data[key]
-                _check(f"{source}: {key}", items, isinstance(items, list), f"expected [[{key}]] tables")
+                check(f"{source}: {key}", items, isinstance(items, list), f"expected [[{key}]] tables")
                 kwargs[key] = tuple(_section_from(sec, it, f"{source}: [[{key}]] #{i}")
                                     for i, it in enumerate(items))
         return cls(**kwargs)
@@ -282,10 +282,10 @@ def _section_dict(obj) -> dict:
 
 
 def _section_from(cls, table, where: str):
-    _check(where, table, isinstance(table, dict), "expected a table of key = value")
+    check(where, table, isinstance(table, dict), "expected a table of key = value")
     names = {f.name for f in dataclasses.fields(cls)}
     for key in table:
-        _check(f"{where} key", key, key in names, f"known keys are {sorted(names)}")
+        check(f"{where} key", key, key in names, f"known keys are {sorted(names)}")
     return cls(**table)
 
 
@@ -365,9 +365,9 @@ def _scene_table(path: Path, chain: tuple) -> dict:
     if "base" not in data:
         return data
     base = data.pop("base")
-    _check(f"{path}: base", base, isinstance(base, str), "must be a scene name or a path to a .toml file")
+    check(f"{path}: base", base, isinstance(base, str), "must be a scene name or a path to a .toml file")
     base_path = _scene_path(base, relative_to=path)
-    _check(f"{path}: base", base, base_path.resolve() not in chain + (path.resolve(),),
+    check(f"{path}: base", base, base_path.resolve() not in chain + (path.resolve(),),
            "makes a cycle of scenes built on each other")
     merged = _scene_table(base_path, chain + (path.resolve(),))
     for key, value in data.items():

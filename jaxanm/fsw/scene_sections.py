@@ -16,8 +16,8 @@ import math
 import re
 
 from .. import scheme_names
-from .._solver import make_solver, solver_kinds
 from ..errors import InputError
+from ..internal import make_solver, solver_kinds
 
 __all__ = [
     "EDGE_ROWS",
@@ -70,8 +70,9 @@ OMEGA_MAX = 1000.0
 """Fastest tool rotation a scene may ask for (rad/s)."""
 MAX_SAMPLES = 100_000
 """Largest number of samples of a registration section."""
-_NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-.+")
-_COLUMN_CHARS = _NAME_CHARS - set("-.+")
+NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-.+")
+"""Characters allowed in a scene's name and in the names it gives (effects, probes, sections)."""
+_COLUMN_CHARS = NAME_CHARS - set("-.+")
 """Characters of a probe name: a CSV column name that readers (numpy's ``genfromtxt(names=True)``
 in :mod:`jaxanm.fsw.compare`) keep as it is."""
 
@@ -85,7 +86,8 @@ def _fail(field: str, value, allowed: str):
     raise SceneError(f"scene field {field!r} = {value!r} is invalid: {allowed}")
 
 
-def _check(field: str, value, ok: bool, allowed: str) -> None:
+def check(field: str, value, ok: bool, allowed: str) -> None:
+    """Raise :class:`SceneError` naming ``field``, ``value`` and what is ``allowed`` unless ``ok``."""
     if not ok:
         _fail(field, value, allowed)
 
@@ -103,7 +105,7 @@ def _as_float(field: str, value) -> float:
         value = float(value)
     except OverflowError:
         _fail(field, value, "expected a finite real number (this integer is too large for a float)")
-    _check(field, value, math.isfinite(value), "expected a finite real number")
+    check(field, value, math.isfinite(value), "expected a finite real number")
     return value
 
 
@@ -118,8 +120,9 @@ def _as_int(field: str, value) -> int:
     return int(value)
 
 
-def _as_str(field: str, value) -> str:
-    _check(field, value, isinstance(value, str), "expected a string")
+def as_str(field: str, value) -> str:
+    """``value`` if it is a string, else :class:`SceneError` naming ``field``."""
+    check(field, value, isinstance(value, str), "expected a string")
     return value
 
 
@@ -127,28 +130,28 @@ def _as_floats(field: str, value) -> tuple:
     """A tuple of floats from a list/tuple (or a comma-separated string)."""
     if isinstance(value, str):
         value = [v for v in (s.strip() for s in value.split(",")) if v]
-    _check(field, value, isinstance(value, (list, tuple)), "expected a list of real numbers")
+    check(field, value, isinstance(value, (list, tuple)), "expected a list of real numbers")
     return tuple(_as_float(f"{field}[{i}]", v) for i, v in enumerate(value))
 
 
-def _as_strs(field: str, value) -> tuple:
+def as_strs(field: str, value) -> tuple:
     """A tuple of strings from a list/tuple (or a comma-separated string)."""
     if isinstance(value, str):
         value = [v for v in (s.strip() for s in value.split(",")) if v]
-    _check(field, value, isinstance(value, (list, tuple)), "expected a list of names")
-    return tuple(_as_str(f"{field}[{i}]", v) for i, v in enumerate(value))
+    check(field, value, isinstance(value, (list, tuple)), "expected a list of names")
+    return tuple(as_str(f"{field}[{i}]", v) for i, v in enumerate(value))
 
 
 def _as_bool(field: str, value) -> bool:
     """A bool from a bool (or, for overrides, ``true``/``false``)."""
     if isinstance(value, str) and value.strip().lower() in ("true", "false"):
         value = value.strip().lower() == "true"
-    _check(field, value, isinstance(value, bool), "expected true or false")
+    check(field, value, isinstance(value, bool), "expected true or false")
     return value
 
 
-_CONVERTERS = {"float": _as_float, "int": _as_int, "str": _as_str, "bool": _as_bool,
-               "tuple[float, ...]": _as_floats, "tuple[str, ...]": _as_strs}
+_CONVERTERS = {"float": _as_float, "int": _as_int, "str": as_str, "bool": _as_bool,
+               "tuple[float, ...]": _as_floats, "tuple[str, ...]": as_strs}
 
 
 class _Section:
@@ -168,7 +171,7 @@ class _Section:
     def _positive(self, *names: str) -> None:
         for name in names:
             value = getattr(self, name)
-            _check(f"{self._name}.{name}", value, value > 0, "must be > 0")
+            check(f"{self._name}.{name}", value, value > 0, "must be > 0")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -223,29 +226,29 @@ class Geometry(_Section):
 
     def _validate(self):
         self._positive("R1", "R2", "dr", "c")
-        _check("geometry.R2", self.R2, self.R2 > self.R1, f"must exceed geometry.R1 = {self.R1}")
-        _check("geometry.dr", self.dr, self.dr <= (self.R2 - self.R1) / 2,
+        check("geometry.R2", self.R2, self.R2 > self.R1, f"must exceed geometry.R1 = {self.R1}")
+        check("geometry.dr", self.dr, self.dr <= (self.R2 - self.R1) / 2,
                f"must be <= (R2 - R1) / 2 = {(self.R2 - self.R1) / 2:.6g} (at least one ring of "
                f"points between tool and outer edge)")
         smallest = self.R2 * math.sqrt(math.pi / MAX_POINTS)  # about MAX_POINTS points (no overflow)
-        _check("geometry.dr", self.dr, self.dr >= smallest,
+        check("geometry.dr", self.dr, self.dr >= smallest,
                f"with geometry.R2 = {self.R2} it asks for more than {MAX_POINTS} points (about "
                f"pi (R2/dr)^2): use dr >= {smallest:.3g}")
-        _check("geometry.h_factor", self.h_factor, 1.5 <= self.h_factor <= 6.0,
+        check("geometry.h_factor", self.h_factor, 1.5 <= self.h_factor <= 6.0,
                "must be in [1.5, 6] (the paper uses 3)")
-        _check("geometry.layout", self.layout, self.layout in LAYOUTS, f"must be one of {LAYOUTS}")
-        _check("geometry.c", self.c, self.c <= 10.0, "must be in (0, 10] (weight exp(-(r/c)^(2q)), the paper uses 0.2)")
-        _check("geometry.q", self.q, 1 <= self.q <= 10, "must be an integer in [1, 10] (the paper uses 1)")
+        check("geometry.layout", self.layout, self.layout in LAYOUTS, f"must be one of {LAYOUTS}")
+        check("geometry.c", self.c, self.c <= 10.0, "must be in (0, 10] (weight exp(-(r/c)^(2q)), the paper uses 0.2)")
+        check("geometry.q", self.q, 1 <= self.q <= 10, "must be an integer in [1, 10] (the paper uses 1)")
         if self.layout == "graded":
-            _check("geometry.dr_far", self.dr_far, self.dr <= self.dr_far <= (self.R2 - self.R1) / 2,
+            check("geometry.dr_far", self.dr_far, self.dr <= self.dr_far <= (self.R2 - self.R1) / 2,
                    f"the graded layout's far-field spacing must be in [geometry.dr = {self.dr:.6g}, "
                    f"(R2 - R1) / 2 = {(self.R2 - self.R1) / 2:.6g}]")
-            _check("geometry.band", self.band, 0.0 <= self.band <= min(self.R1, self.R2 - self.R1) / 2,
+            check("geometry.band", self.band, 0.0 <= self.band <= min(self.R1, self.R2 - self.R1) / 2,
                    f"the graded layout's fine zone on each side of R1 must be in [0, "
                    f"{min(self.R1, self.R2 - self.R1) / 2:.6g}] (m)")
-            _check("geometry.grading", self.grading, 1.0 < self.grading <= 2.0,
+            check("geometry.grading", self.grading, 1.0 < self.grading <= 2.0,
                    "must be in (1, 2]: the ratio of successive ring spacings of the graded layout")
-        _check("geometry.rezone", self.rezone, 0.0 <= self.rezone < 1.0,
+        check("geometry.rezone", self.rezone, 0.0 <= self.rezone < 1.0,
                "must be in [0, 1): the fraction of a plate point's seeded nearest-neighbour distance "
                "below which the Lagrangian cloud is re-seeded (0: never; e.g. 0.9)")
 
@@ -276,12 +279,12 @@ class Material(_Section):
 
     def _validate(self):
         self._positive("K", "n", "eps0", "rho", "Cp", "k")
-        _check("material.eps0_relative", self.eps0_relative, 0.0 <= self.eps0_relative <= 1.0,
+        check("material.eps0_relative", self.eps0_relative, 0.0 <= self.eps0_relative <= 1.0,
                "must be in [0, 1] (0: material.eps0 is used as it is; e.g. 0.005, the paper's scenes' "
                "0.1 1/s at omega = 20 rad/s)")
-        _check("material.n", self.n, self.n <= 2.0, "must be in (0, 2] (power-law index)")
-        _check("material.A", self.A, -20.0 <= self.A <= 20.0, "must be in [-20, 20]")
-        _check("material.beta", self.beta, 0.0 <= self.beta <= 1.0, "must be in [0, 1]")
+        check("material.n", self.n, self.n <= 2.0, "must be in (0, 2] (power-law index)")
+        check("material.A", self.A, -20.0 <= self.A <= 20.0, "must be in [-20, 20]")
+        check("material.beta", self.beta, 0.0 <= self.beta <= 1.0, "must be in [0, 1]")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -311,7 +314,7 @@ class Tool(_Section):
 
     def _validate(self):
         self._positive("rho", "Cp", "k", "omega")
-        _check("tool.omega", self.omega, self.omega <= OMEGA_MAX,
+        check("tool.omega", self.omega, self.omega <= OMEGA_MAX,
                f"must be in (0, {OMEGA_MAX:g}] rad/s ({OMEGA_MAX * 30 / math.pi:.0f} rpm, beyond friction stir "
                "welding practice, 30-300 rad/s)")
 
@@ -341,12 +344,12 @@ class Thermal(_Section):
     edge_source: str = "point"
 
     def _validate(self):
-        _check("thermal.h", self.h, self.h >= 0, "must be >= 0")
+        check("thermal.h", self.h, self.h >= 0, "must be >= 0")
         self._positive("Ta", "T0")
-        _check("thermal.edge_rows", self.edge_rows, self.edge_rows in EDGE_ROWS, f"must be one of {EDGE_ROWS}")
-        _check("thermal.edge_source", self.edge_source, self.edge_source in EDGE_SOURCES,
+        check("thermal.edge_rows", self.edge_rows, self.edge_rows in EDGE_ROWS, f"must be one of {EDGE_ROWS}")
+        check("thermal.edge_source", self.edge_source, self.edge_source in EDGE_SOURCES,
                f"must be one of {EDGE_SOURCES}")
-        _check("thermal.edge_source", self.edge_source,
+        check("thermal.edge_source", self.edge_source,
                self.edge_source == "point" or self.edge_rows == "half_cell",
                'integrates the source of the edge half cell: needs thermal.edge_rows = "half_cell"')
 
@@ -375,8 +378,8 @@ class Mechanics(_Section):
     pressure_stabilisation: float = 0.01
 
     def _validate(self):
-        _check("mechanics.penalty", self.penalty, self.penalty >= 0, "must be >= 0 (Pa s)")
-        _check("mechanics.start", self.start, self.start in STARTS,
+        check("mechanics.penalty", self.penalty, self.penalty >= 0, "must be >= 0 (Pa s)")
+        check("mechanics.start", self.start, self.start in STARTS,
                f"must be one of {STARTS}: the plate at rest at t = 0, or the quasi-static flow at T0 "
                "(by damped Newton or by continuation)")
 
@@ -411,28 +414,28 @@ class Time(_Section):
     dt_max: float = 0.0
 
     def _validate(self):
-        _check("time.scheme", self.scheme, self.scheme in scheme_names(),
+        check("time.scheme", self.scheme, self.scheme in scheme_names(),
                f"must be one of {', '.join(scheme_names())} (implicit Euler, BDF2, Kværnø's ESDIRKs of order 3 "
                "and 4)")
         self._positive("dt", "t_end")
-        _check("time.dt_max", self.dt_max, self.dt_max >= 0,
+        check("time.dt_max", self.dt_max, self.dt_max >= 0,
                "must be >= 0 (s): the largest adaptive step, 0 for no bound of the scene's own")
         for name in ("rtol", "atol"):
             value = getattr(self, name)
-            _check(f"time.{name}", value, value >= 0, "must be >= 0 (0 leaves its part out of the error test)")
-            _check(f"time.{name}", value, value < 1 or not self.adaptive,
+            check(f"time.{name}", value, value >= 0, "must be >= 0 (0 leaves its part out of the error test)")
+            check(f"time.{name}", value, value < 1 or not self.adaptive,
                    "must be < 1 with time.adaptive = true: the tolerances are relative (atol to the fields' "
                    "scales omega R1 and T0, rtol to their values), and 1 accepts an error the size of the "
                    "field itself; e.g. 1e-5")
-        _check("time.atol", self.atol, self.rtol > 0 or self.atol > 0 or not self.adaptive,
+        check("time.atol", self.atol, self.rtol > 0 or self.atol > 0 or not self.adaptive,
                "time.rtol or time.atol must be > 0 with time.adaptive = true (with both 0 the error test "
                "accepts no step): set e.g. time.atol = 1e-5, or time.adaptive = false")
-        _check("time.dt", self.dt, self.dt <= self.t_end, f"must be <= time.t_end = {self.t_end}")
-        _check("time.dt", self.dt, self.dt * MAX_STEPS >= self.t_end,
+        check("time.dt", self.dt, self.dt <= self.t_end, f"must be <= time.t_end = {self.t_end}")
+        check("time.dt", self.dt, self.dt * MAX_STEPS >= self.t_end,
                f"time.t_end / time.dt asks for more than {MAX_STEPS} steps: use dt >= "
                f"{self.t_end / MAX_STEPS:.3g} or a shorter t_end")
         for i, s in enumerate(self.save):
-            _check(f"time.save[{i}]", s, s >= 0, "save times must be >= 0")
+            check(f"time.save[{i}]", s, s >= 0, "save times must be >= 0")
 
     @property
     def save_times(self) -> tuple:
@@ -466,10 +469,10 @@ class SolverSpec(_Section):
     max_rate: float = 0.5
 
     def _validate(self):
-        _check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
-        _check("solver.order", self.order, self.order <= MAX_ORDER,
+        check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
+        check("solver.order", self.order, self.order <= MAX_ORDER,
                f"must be at most {MAX_ORDER}: the jet series compiles in a time that grows steeply with the order")
-        _check("solver.max_iter", self.max_iter, self.max_iter >= 0,
+        check("solver.max_iter", self.max_iter, self.max_iter >= 0,
                "must be an integer >= 0 (0: the solver's own default)")
         try:
             self.make()
@@ -494,8 +497,16 @@ class SolverSpec(_Section):
 
 _REGISTERED_KIND = {scene_kind: kind for kind, scene_kind in SOLVER_NAMES.items()}
 """``solver.kind`` of a scene -> the registered kind (:data:`SOLVER_NAMES` inverted)."""
-SOLVER_OPTIONS = {kind: tuple(f.name for f in dataclasses.fields(SolverSpec)
-                              if f.name in {g.name for g in dataclasses.fields(make_solver(kind))})
+
+
+def _solver_fields(kind: str) -> set:
+    """The option names of the registered solver ``kind`` (every step solver is a dataclass)."""
+    solver = make_solver(kind)
+    assert dataclasses.is_dataclass(solver)
+    return {f.name for f in dataclasses.fields(solver)}
+
+
+SOLVER_OPTIONS = {kind: tuple(f.name for f in dataclasses.fields(SolverSpec) if f.name in _solver_fields(kind))
                   for kind in SOLVER_NAMES}
 """For each registered solver kind, the ``solver.*`` fields of a scene its solver takes (in the
 scene's order): what :meth:`SolverSpec.make` passes on, and the settings a sweep's ``[[solvers]]``
@@ -522,7 +533,7 @@ class Probe(_Section):
     y: float = 0.0
 
     def _validate(self):
-        _check("probes.name", self.name, 0 < len(self.name) <= 50 and set(self.name) <= _COLUMN_CHARS
+        check("probes.name", self.name, 0 < len(self.name) <= 50 and set(self.name) <= _COLUMN_CHARS
                and self.name != "t",
                "must be 1-50 letters, digits or '_' other than 't' (it names the probes.csv columns "
                "<name>_u, <name>_v, <name>_T)")
@@ -539,9 +550,9 @@ class Section(_Section):
     samples: int = 161
 
     def _validate(self):
-        _check("sections.name", self.name, bool(self.name), "must be a non-empty name")
+        check("sections.name", self.name, bool(self.name), "must be a non-empty name")
         for key in ("start", "end"):
-            _check(f"sections.{key}", getattr(self, key), len(getattr(self, key)) == 2,
+            check(f"sections.{key}", getattr(self, key), len(getattr(self, key)) == 2,
                    "must be a point [x, y]")
-        _check("sections.samples", self.samples, 2 <= self.samples <= MAX_SAMPLES,
+        check("sections.samples", self.samples, 2 <= self.samples <= MAX_SAMPLES,
                f"must be an integer in [2, {MAX_SAMPLES}]")

@@ -146,7 +146,7 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         initial = model.values(x0, stencils)
     tm = scene.time
     controller = step_controller(scene, model)
-    saveat = jaxanm.SaveAt(ts=[t for t in tm.save_times if t > 0])
+    saveat = jaxanm.SaveAt(ts=tuple(t for t in tm.save_times if t > 0))
     save_times = saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None)
     recorder = RunRecorder(scene, model, stencils, x0, save_times, initial=initial, start=start)
     latest = {"stats": jaxanm.Stats()}
@@ -169,11 +169,11 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
                                checkpoint_every=checkpoint_every, resume=resume, host_state=host,
                                controller=controller)
     except (KeyboardInterrupt, jaxanm.StepFailure) as exc:
-        try:  # the steps recorded so far (consistent: integrate defers signals while recording),
-            # with integrate's statistics: they count the work of the step it stopped in, which no
-            # callback reported (the whole run's work when it stopped in its first step)
+        try:  # the steps recorded so far (integrate defers signals while recording), with integrate's
+            # statistics: they count the work of the step it stopped in, which no callback reported
             stats = getattr(exc, "stats", None)
-            exc.partial = recorder.result(solver, latest["stats"] if stats is None else stats)
+            partial = recorder.result(solver, latest["stats"] if stats is None else stats)
+            exc.partial = partial  # type: ignore[union-attr]  # an interrupt stays a KeyboardInterrupt
         except Exception:  # noqa: BLE001 - a broken recorder must not hide the original error
             pass
         raise

@@ -30,7 +30,7 @@ def travels(result) -> bool:
     """Whether ``result``'s scene has the tool travelling (``traverse`` with U > 0)."""
     scene = getattr(result, "scene", None)
     has = getattr(scene, "has", None)
-    return bool(has is not None and has("traverse") and scene.tool.traverse_speed > 0)
+    return bool(scene is not None and has is not None and has("traverse") and scene.tool.traverse_speed > 0)
 
 
 def _sides(ax, R2: float) -> None:
