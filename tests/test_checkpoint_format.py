@@ -224,3 +224,14 @@ def test_parameters_are_stored_as_leaves_and_resumed_in_the_runs_tree(tmp_path):
     with pytest.raises(jaxanm.InputError, match=re.escape(f"checkpoint {path} stores parameters of 2 arrays, "
                                                           "this run's have 3")):
         jaxanm.integrate(residual, x0, {**params, "extra": np.float64(0.0)}, resume=True, **kw)
+
+
+def test_the_package_never_unpickles():
+    """No module of jaxanm loads a pickle or lets numpy do so: every file it reads is data."""
+    from pathlib import Path
+
+    package = Path(jaxanm.__file__).parent
+    offenders = [f"{path.relative_to(package.parent)}:{n}" for path in sorted(package.rglob("*.py"))
+                 for n, line in enumerate(path.read_text().splitlines(), 1)
+                 if re.search(r"pickle\.(load|loads|Unpickler)\b|allow_pickle\s*=\s*True|import (cloud|dill)", line)]
+    assert not offenders, "unpickling at " + ", ".join(offenders)
