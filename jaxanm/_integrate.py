@@ -107,8 +107,8 @@ def integrate(residual: Callable | SemiDiscrete, x0, params=None, *, t0: float, 
         in ``stats.resumes``, not in ``factorizations``; :func:`jaxanm.stored_host_state`).
     host_state : ``(get, set)`` pair of callables, optional
         State kept on the host outside ``x`` and ``params`` (the FSW recorder): ``get()``, a
-        picklable snapshot taken only between steps, goes into every checkpoint; on resume
-        ``set(snapshot)`` restores it before the first step.
+        snapshot taken only between steps, goes into every checkpoint; on resume
+        ``set(snapshot)`` restores it before the first step (plain data, arrays: :mod:`jaxanm.checkpoint`).
     controller : StepController or ConstantStepSize, optional
         Fixed steps (None: :class:`~jaxanm.ConstantStepSize`) or :class:`~jaxanm.StepController`'s.
     sensitivity : SensitivityMethod, optional

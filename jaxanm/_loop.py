@@ -130,7 +130,7 @@ class TimeLoop:
 
     def _resume(self, payload: dict) -> None:
         """The record, the solver's K* and the controller's state from a checkpoint."""
-        state = from_checkpoint(payload, self.state)
+        state = from_checkpoint(payload, self.state, self.options.checkpoints.path)
         state = state._replace(params=on_device(state.params),
                                controller_state=self.controller.from_checkpoint(state.controller_state,
                                                                                 payload["controller"]))

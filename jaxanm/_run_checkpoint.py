@@ -6,8 +6,11 @@ file ``format``).  Version :data:`VERSION` holds:
 
 - ``version``: :data:`VERSION`; ``fingerprint``: the run's size, span, step, solver,
   controller and time scheme (a checkpoint resumes only the run it was written by);
-- ``k``, ``t``, ``x``, ``params`` (host arrays): the last accepted step (:class:`LoopState`);
-- ``ts``, ``xs``, ``ps``, ``observed`` (lists): what the run kept so far;
+- ``k``, ``t``, ``x``: the last accepted step (:class:`LoopState`); ``params``: the leaves of
+  its parameters (host arrays, in ``jax.tree_util`` order: the tree itself is the one the
+  resumed run is given, so any pytree of parameters can be stored as plain data);
+- ``ts``, ``xs``, ``ps`` (each saved step's parameter leaves), ``observed`` (lists): what the
+  run kept so far;
 - ``controller``: what the step-size controller stores of its state
   (:meth:`~jaxanm.StepController.to_checkpoint`); ``kstar_dt``;
 - ``scheme``: the time scheme's history (:class:`~jaxanm.TimeScheme`: numpy arrays and floats,
@@ -22,13 +25,15 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
+import jax
+
 from ._loop_state import Kept, Log, LoopState
 from .checkpoint import read, to_host, write_atomic
 from .errors import InputError
 
-VERSION = 3
+VERSION = 4
 """The run checkpoint version this jaxanm writes and reads (1: before the loop's record; 2:
-before the time schemes)."""
+before the time schemes; 3: parameters stored as their tree)."""
 
 
 def to_checkpoint(state: LoopState, *, fingerprint: dict, stats, solver: object, controller: object,
@@ -39,8 +44,9 @@ def to_checkpoint(state: LoopState, *, fingerprint: dict, stats, solver: object,
     kept = state.kept
     return {
         "version": VERSION, "fingerprint": fingerprint,
-        "k": state.k, "t": state.t, "x": state.x, "params": to_host(state.params),
-        "ts": kept.ts.tolist(), "xs": kept.xs.tolist(), "ps": None if kept.ps is None else kept.ps.tolist(),
+        "k": state.k, "t": state.t, "x": state.x, "params": _leaves(state.params),
+        "ts": kept.ts.tolist(), "xs": kept.xs.tolist(),
+        "ps": None if kept.ps is None else [_leaves(p) for p in kept.ps.tolist()],
         "observed": None if kept.observed is None else {key: log.tolist() for key, log in kept.observed.items()},
         "controller": controller, "kstar_dt": state.kstar_dt, "scheme": state.scheme_state, "solver": solver,
         "stats": stats,
@@ -48,14 +54,29 @@ def to_checkpoint(state: LoopState, *, fingerprint: dict, stats, solver: object,
     }
 
 
-def from_checkpoint(payload: dict, start: LoopState) -> LoopState:
-    """The record a checkpoint stores, over ``start`` (the record a fresh run starts from, whose
-    solver and controller states are then restored from ``payload["solver"]`` and
-    ``payload["controller"]`` by the loop); ``params`` as stored (on the host)."""
+def _leaves(params) -> list:
+    """The leaves of a parameter pytree, on the host."""
+    return jax.tree_util.tree_leaves(to_host(params))
+
+
+def from_checkpoint(payload: dict, start: LoopState, path=None) -> LoopState:
+    """The record a checkpoint (at ``path``) stores, over ``start`` (the record a fresh run
+    starts from, whose solver and controller states are then restored from
+    ``payload["solver"]`` and ``payload["controller"]`` by the loop); ``params`` on the host,
+    in the tree of ``start.params``."""
+    tree = jax.tree_util.tree_structure(start.params)
+
+    def params(leaves):
+        if len(leaves) != tree.num_leaves:
+            raise InputError(f"checkpoint {path} stores parameters of {len(leaves)} arrays, this run's have "
+                             f"{tree.num_leaves}: resume with the parameters it was started with, or start afresh")
+        return jax.tree_util.tree_unflatten(tree, leaves)
+
     observed = payload["observed"]
-    kept = Kept(Log.of(payload["ts"]), Log.of(payload["xs"]), None if payload["ps"] is None else Log.of(payload["ps"]),
+    ps = None if payload["ps"] is None else Log.of([params(p) for p in payload["ps"]])
+    kept = Kept(Log.of(payload["ts"]), Log.of(payload["xs"]), ps,
                 None if observed is None else {key: Log.of(v) for key, v in observed.items()})
-    return start._replace(k=payload["k"], t=payload["t"], x=payload["x"], params=payload["params"],
+    return start._replace(k=payload["k"], t=payload["t"], x=payload["x"], params=params(payload["params"]),
                           kstar_dt=payload["kstar_dt"], scheme_state=payload["scheme"], kept=kept)
 
 

@@ -17,7 +17,7 @@ any scene field by dotted key (``--set material.K=2e16 --set effects=viscous,con
 overrides.  Results go to ``--out`` (default ``results/<scene>-<solver>``), see
 :func:`jaxanm.fsw.io.output.write_outputs`.
 
-Checkpoints: ``--checkpoint-every N`` writes ``DIR/checkpoint.pkl`` atomically every N time
+Checkpoints: ``--checkpoint-every N`` writes ``DIR/checkpoint.npz`` atomically every N time
 steps, at the end, and when the run is interrupted (SIGINT/Ctrl-C, SIGTERM) or fails.  It holds
 the scene (solver settings included), the solver's state, K* and every result recorded so far,
 so ``jaxanm run --resume DIR`` needs no other argument and ends with the same files as an
@@ -58,8 +58,10 @@ from jaxanm.fsw.scene import SOLVER_NAMES, SOLVER_OPTIONS, override_keys
 
 PROG = "jaxanm"
 DEFAULT_SCENE = "fsw"
-CHECKPOINT_NAME = "checkpoint.pkl"
-"""File name of the checkpoint inside the output directory."""
+CHECKPOINT_NAME = "checkpoint.npz"
+"""File name of the checkpoint inside the output directory (:mod:`jaxanm.checkpoint`'s format)."""
+OLD_CHECKPOINT_NAME = "checkpoint.pkl"
+"""File name of the pickle checkpoints older jaxanm versions wrote (not read: refused with a message)."""
 
 
 class UsageError(Exception):
@@ -251,6 +253,10 @@ def _resume_plan(args: argparse.Namespace):
 
     out_dir = args.resume
     path = out_dir / CHECKPOINT_NAME
+    if not path.is_file() and (out_dir / OLD_CHECKPOINT_NAME).is_file():
+        raise UsageError(f"--resume {out_dir}: its {OLD_CHECKPOINT_NAME} is a pickle checkpoint of an older jaxanm "
+                         "version, which this one does not read (a pickle can run code): finish the run with the "
+                         "version that wrote it, or start afresh")
     if not path.is_file():
         raise UsageError(f"--resume {out_dir}: no {CHECKPOINT_NAME} there; start the run with "
                          f"--checkpoint-every N --out {out_dir} to make one")

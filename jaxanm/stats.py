@@ -6,9 +6,12 @@ import contextlib
 import dataclasses
 import time
 
+from ._plain import stored_type
+
 TIMER_KEYS = ("jacobian", "factorize", "series", "solve", "other")
 
 
+@stored_type("Stats")
 @dataclasses.dataclass
 class Stats:
     """Statistics of one :func:`jaxanm.integrate` run.
@@ -70,6 +73,15 @@ class Stats:
         d["residual_norm"] = [float(r) for r in self.residual_norm]
         d["step_sizes"] = [float(h) for h in self.step_sizes]
         return d
+
+    def to_plain(self) -> dict:
+        """Every field as it is (how a checkpoint stores the statistics; :meth:`from_plain`)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_plain(cls, state: dict) -> Stats:
+        """The statistics :meth:`to_plain` gave."""
+        return cls(**state)
 
     def summary(self) -> dict:
         """The headline numbers (no per-step lists), for printing side by side."""

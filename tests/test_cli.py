@@ -495,7 +495,7 @@ def test_interrupted_run_resumes_to_the_same_fields(resume_scene, tmp_path, monk
     assert cli.main(["run", str(path), "--out", str(out), "--checkpoint-every", "2", "--no-progress"]) == 130
     line = one_error_line(capsys.readouterr().err)
     assert "interrupted" in line and f"resume with: jaxanm run --resume {out}" in line
-    assert (out / "checkpoint.pkl").is_file()
+    assert (out / "checkpoint.npz").is_file()
     assert not [f for f in os.listdir(out) if f.startswith(".")]  # no half-written file left
     with np.load(out / "fields.npz") as partial:  # the results so far were written
         assert list(partial["t"]) == [0.0, 2e-4]
@@ -548,7 +548,7 @@ def test_resume_takes_scene_and_settings_from_the_checkpoint(tmp_path, fake_run,
 
 
 @pytest.mark.parametrize("content, expected", [
-    (None, "no checkpoint.pkl there"),
+    (None, "no checkpoint.npz there"),
     (b"not a pickle", "not a readable jaxanm checkpoint"),
 ])
 def test_resume_without_a_usable_checkpoint_exits_2(content, expected, tmp_path, fake_run, capsys):
@@ -560,6 +560,6 @@ def test_resume_without_a_usable_checkpoint_exits_2(content, expected, tmp_path,
 
 def test_checkpoint_every_goes_into_the_output_directory(tiny, tmp_path, fake_run, no_files):
     assert cli.main(["run", str(tiny), "--out", str(tmp_path), "--checkpoint-every", "5", "--no-progress"]) == 0
-    assert fake_run["checkpointing"] == {"checkpoint": tmp_path / "checkpoint.pkl", "checkpoint_every": 5,
+    assert fake_run["checkpointing"] == {"checkpoint": tmp_path / "checkpoint.npz", "checkpoint_every": 5,
                                          "resume": False}
     assert cli.main(["run", str(tiny), "--checkpoint-every", "0"]) == 2

@@ -16,6 +16,7 @@ import numpy as np
 import scipy.sparse
 
 from .. import Factorization, mls
+from ..checkpoint import stored_type
 from ..internal import sparse_lu
 from .effects import CONSTANTS, REGISTRY, Effects, scene_value
 from .geometry import PLATE_EDGE, RING, TOOL_EDGE, Cloud, build_cloud, cloud_stencils, rigid, spacing
@@ -197,6 +198,7 @@ def _stencil_values(index: np.ndarray, phi: np.ndarray, nodal: np.ndarray) -> np
     return _value_csr(index, phi, nodal.shape[0]) @ nodal
 
 
+@stored_type("fsw.Refit")
 class Refit:
     """Refits of a Lagrangian run's state, preconditioned by an earlier factorisation.
 
@@ -221,8 +223,8 @@ class Refit:
     chose it, and the factorisation every step it replaced, are in
     benchmarks/results/profile_host_step.md.
 
-    Pickles as the factorised matrix (the factors are remade from it on load, bit-identically,
-    so a resumed run refits exactly as an uninterrupted one).
+    Stored in checkpoints with the factorised matrix (:meth:`to_plain`; the factors are remade
+    from it on load, bit-identically, so a resumed run refits exactly as an uninterrupted one).
 
     Attributes
     ----------
@@ -239,12 +241,20 @@ class Refit:
         self.iterations: list[int] = []
         self.factorizations = 0
 
-    def __getstate__(self):
-        return {k: v for k, v in vars(self).items() if k != "_lu"}
+    STATE = ("tol", "max_iter", "refresh", "matrix", "iterations", "factorizations")
+    """What :meth:`to_plain` stores: every attribute but the factors, remade from ``matrix``."""
 
-    def __setstate__(self, state):
-        vars(self).update(state)
-        self._lu = None if self.matrix is None else sparse_lu(self.matrix)
+    def to_plain(self) -> dict:
+        """The refit's state, ``{name: value}`` for each name of :data:`STATE`."""
+        return {name: getattr(self, name) for name in self.STATE}
+
+    @classmethod
+    def from_plain(cls, state: dict) -> Refit:
+        """The refit :meth:`to_plain` stored, its factors remade from the stored matrix."""
+        new = cls(state["tol"], state["max_iter"], state["refresh"])
+        new.matrix, new.iterations, new.factorizations = state["matrix"], state["iterations"], state["factorizations"]
+        new._lu = None if new.matrix is None else sparse_lu(new.matrix)
+        return new
 
     def _factorise(self, stencils: mls.Stencils) -> None:
         self.matrix = mls.value_matrix(stencils)

@@ -104,7 +104,7 @@ class ProbeSites:
     (:class:`Recorder`), :func:`jaxanm.fsw.ida_scene.run_ida` and the calibration's
     observations use them, so a probe history is the same quantity on every cloud and for
     every solver.  A probe on a cloud point gets that point's values (the same stencil, to
-    round-off).  The stencils hold numpy arrays: they pickle into checkpoints as they are.
+    round-off).  Checkpoints do not store them: a resumed run makes them again from the scene.
 
     Attributes
     ----------
@@ -187,8 +187,8 @@ class Recorder:
 
     def to_checkpoint(self) -> dict:
         """The run state of the recorder, ``{"version": CHECKPOINT_VERSION, name: value}`` for
-        each name of :data:`CHECKPOINTED` (plain data, numpy arrays and the stencil helpers'
-        state, pickled with the run's checkpoint)."""
+        each name of :data:`CHECKPOINTED` (plain data, numpy arrays and the registered types of
+        :func:`jaxanm.checkpoint.stored_type`: the neighbour lists, the refit, the start report)."""
         return {"version": self.CHECKPOINT_VERSION, **{name: getattr(self, name) for name in self.CHECKPOINTED}}
 
     def from_checkpoint(self, stored: dict) -> None:

@@ -39,6 +39,7 @@ import time
 
 import numpy as np
 
+from ..checkpoint import stored_type
 from ..continuation import continuation
 from ..errors import StepFailure
 from ..internal import Problem, entry_point, factorize, relative_change
@@ -55,6 +56,7 @@ _MIN_STEP = 2.0 ** -12
 """Shortest line-search step; below it the iteration is declared failed."""
 
 
+@stored_type("fsw.StartReport")
 @dataclasses.dataclass
 class StartReport:
     """How the start flow was solved.
@@ -81,6 +83,15 @@ class StartReport:
     residual_norms: list
     stats: Stats
     path: list = dataclasses.field(default_factory=list)
+
+    def to_plain(self) -> dict:
+        """Every field as it is (how a checkpoint stores the report; :meth:`from_plain`)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_plain(cls, state: dict) -> StartReport:
+        """The report :meth:`to_plain` gave."""
+        return cls(**state)
 
 
 def _line_search(problem: Problem, x, dx, r_norm: float, args: tuple):

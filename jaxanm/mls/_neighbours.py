@@ -7,10 +7,13 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..checkpoint import stored_type
+
 M_MAX_MULTIPLE = 8
 """The default stencil width is the largest neighbour count rounded up to a multiple of this."""
 
 
+@stored_type("mls.NeighbourList")
 class NeighbourList:
     """Neighbour candidates of a moving cloud (a Verlet list), for rebuilding its stencils.
 
@@ -25,7 +28,7 @@ class NeighbourList:
     ``cKDTree.query(targets, k=m, distance_upper_bound=h)`` returns (distances computed the
     same way, ``inf`` where fewer than ``m`` are within ``h``; rows with a candidate at ``h``
     to round-off are left to cKDTree), up to the order of equidistant points.  Plain numpy
-    state: it pickles into checkpoints as it is.
+    state: checkpoints store it as it is (:meth:`to_plain`).
 
     Parameters
     ----------
@@ -41,6 +44,21 @@ class NeighbourList:
         self.candidates: np.ndarray | None = None  # (T, K) node indices, N where absent
         self.rebuilds = 0
         self.width = 0          # the widest stencil it has given (m=None): widths only grow
+
+    STATE = ("skin", "reference", "targets", "reach", "candidates", "rebuilds", "width")
+    """The attributes that make up the list (all of them: what :meth:`to_plain` stores)."""
+
+    def to_plain(self) -> dict:
+        """The list's state, ``{name: value}`` for each name of :data:`STATE`."""
+        return {name: getattr(self, name) for name in self.STATE}
+
+    @classmethod
+    def from_plain(cls, state: dict) -> NeighbourList:
+        """The list :meth:`to_plain` stored (:class:`KeyError` for a missing attribute)."""
+        new = cls(state["skin"])
+        for name in cls.STATE:
+            setattr(new, name, state[name])
+        return new
 
     @staticmethod
     def _moved(now, then) -> float:
