@@ -7,7 +7,7 @@ import dataclasses
 from typing import NamedTuple
 
 from ._saveat import fixed_steps, step_end
-from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
+from ._step_size import Segment, Span, StepPlan, StepSizeController, Verdict
 
 
 class _Fixed(NamedTuple):
@@ -37,12 +37,12 @@ class ConstantStepSize(StepSizeController):
         """After the last of the fixed steps."""
         return k >= state.n_steps
 
-    def attempt(self, state: _Fixed, k: int, t: float, x, params, span: Span) -> Attempt:
+    def attempt(self, state: _Fixed, k: int, t: float, x, params, span: Span) -> StepPlan:
         """Step ``k`` ends at ``t0 + k dt`` (the last at ``t1``), solved from ``t`` in one segment."""
         end = step_end(span.t0, span.t1, span.dt, k, state.n_steps)
-        return Attempt(end, (Segment(t, end - t),))
+        return StepPlan(end, (Segment(t, end - t),))
 
-    def retry(self, state: _Fixed, attempt: Attempt, failure: Exception, span: Span) -> Attempt:
+    def retry(self, state: _Fixed, attempt: StepPlan, failure: Exception, span: Span) -> StepPlan:
         """The failed segment replaced by its two halves (the failure raised past the depth)."""
         failed = attempt.segments[0]
         if failed.depth >= span.max_failures:
@@ -51,7 +51,7 @@ class ConstantStepSize(StepSizeController):
         halves = (Segment(failed.t, half, depth), Segment(failed.t + half, half, depth))
         return attempt._replace(segments=halves + attempt.segments[1:], failures=attempt.failures + 1)
 
-    def judge(self, state: _Fixed, attempt: Attempt, k: int, x, x_new, params, scale, span: Span,
+    def judge(self, state: _Fixed, attempt: StepPlan, k: int, x, x_new, params, scale, span: Span,
               embedded=None) -> Verdict:
         """Every solved step is accepted."""
         return Verdict(state)

@@ -44,7 +44,7 @@ from ._saveat import SaveAt
 from ._scheme import SchemeStep
 from ._sensitivity_method import SensitivityMethod
 from ._solver import StepSolver
-from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
+from ._step_size import Segment, Span, StepPlan, StepSizeController, Verdict
 from .checkpoint import SignalGuard, sigterm_as_interrupt
 from .errors import NonFiniteError, StepFailure
 from .stats import Stats
@@ -184,7 +184,7 @@ class TimeLoop:
             attempt = verdict.retry
         self._accept(k, attempt.end, x_new, r_norm, verdict, solved.history)
 
-    def _solve(self, attempt: Attempt, k: int):
+    def _solve(self, attempt: StepPlan, k: int):
         """The segments of ``attempt``, in order, retried as the controller says when a solve
         fails: ``(x at the end, |R|_inf there, the attempt as finally solved, the scheme's step
         of the last segment)``, that step's ``history`` carried through the segments."""

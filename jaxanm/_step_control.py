@@ -54,7 +54,7 @@ import numpy as np
 
 from ._checks import real
 from ._scheme import TimeScheme
-from ._step_size import Attempt, Segment, Span, StepSizeController, Verdict
+from ._step_size import Segment, Span, StepPlan, StepSizeController, Verdict
 from .errors import InputError, StepFailure
 
 HOLD = 1.5
@@ -192,14 +192,14 @@ class StepController(StepSizeController):
         """Once ``t1`` is reached."""
         return not t < span.t1
 
-    def attempt(self, state: _Adaptive, k: int, t: float, x, params, span: Span) -> Attempt:
+    def attempt(self, state: _Adaptive, k: int, t: float, x, params, span: Span) -> StepPlan:
         """The proposed size (the run's dt at first), the state measured for the estimate (when
         the scheme's estimate reads the steps before, and there are some)."""
         h = state.h_next if state.h_next is not None else float(span.dt)
         y_now = self.measured(x, params) if state.past and span.scheme.estimate_history else None
         return self._planned(state, h, t, span, 0, y_now)
 
-    def _planned(self, state: _Adaptive, h: float, t: float, span: Span, failures: int, y_now) -> Attempt:
+    def _planned(self, state: _Adaptive, h: float, t: float, span: Span, failures: int, y_now) -> StepPlan:
         """A step of at most ``h`` from ``t`` towards the next save time (or t1): within
         :data:`SPREAD` steps of it, the remaining distance in equal steps, ``ceil(distance / h)``
         of them, so that the steps end exactly on it without a short last step (whose stage
@@ -215,9 +215,9 @@ class StepController(StepSizeController):
             end = t + distance / steps
         else:
             end = t + h
-        return Attempt(end, (Segment(t, end - t),), failures, (h, y_now))
+        return StepPlan(end, (Segment(t, end - t),), failures, (h, y_now))
 
-    def retry(self, state: _Adaptive, attempt: Attempt, failure: Exception, span: Span) -> Attempt:
+    def retry(self, state: _Adaptive, attempt: StepPlan, failure: Exception, span: Span) -> StepPlan:
         """The step from its start at a quarter of its size (the failure raised after
         ``max_failures`` in a row)."""
         if attempt.failures >= span.max_failures:
@@ -225,7 +225,7 @@ class StepController(StepSizeController):
         start = attempt.segments[0]
         return self._planned(state, self.clip(start.h / 4), start.t, span, attempt.failures + 1, attempt.memo[1])
 
-    def judge(self, state: _Adaptive, attempt: Attempt, k: int, x, x_new, params, scale, span: Span,
+    def judge(self, state: _Adaptive, attempt: StepPlan, k: int, x, x_new, params, scale, span: Span,
               embedded=None) -> Verdict:
         """The scheme's local error test (none without an estimate); refused steps are retried
         from x at the proposed size unless already at ``dt_min`` (compared before the

@@ -44,7 +44,7 @@ class Segment(NamedTuple):
     depth: int = 0
 
 
-class Attempt(NamedTuple):
+class StepPlan(NamedTuple):
     """A step as planned: it ends at ``end`` (the time the accepted step is recorded at) and is
     solved as ``segments``, in order, each from the state the previous one reached (one
     segment unless a failure split it).  ``failures``: the solver failures retried in this
@@ -63,7 +63,7 @@ class Verdict(NamedTuple):
     the step's start."""
 
     state: object
-    retry: Attempt | None = None
+    retry: StepPlan | None = None
     size: float | None = None
 
 
@@ -83,16 +83,16 @@ class StepSizeController(abc.ABC):
         """Whether the run is over after ``k`` accepted steps reaching time ``t``."""
 
     @abc.abstractmethod
-    def attempt(self, state, k: int, t: float, x: np.ndarray, params, span: Span) -> Attempt:
+    def attempt(self, state, k: int, t: float, x: np.ndarray, params, span: Span) -> StepPlan:
         """The first attempt at step ``k`` from time ``t``, state ``x`` on ``params``."""
 
     @abc.abstractmethod
-    def retry(self, state, attempt: Attempt, failure: Exception, span: Span) -> Attempt:
+    def retry(self, state, attempt: StepPlan, failure: Exception, span: Span) -> StepPlan:
         """The attempt to go on with after the solver failed ``attempt.segments[0]`` (the
         segments after it not solved yet); raises ``failure`` when the retries are spent."""
 
     @abc.abstractmethod
-    def judge(self, state, attempt: Attempt, k: int, x: np.ndarray, x_new: np.ndarray, params, scale,
+    def judge(self, state, attempt: StepPlan, k: int, x: np.ndarray, x_new: np.ndarray, params, scale,
               span: Span, embedded: np.ndarray | None = None) -> Verdict:
         """Accept or refuse step ``k``, solved from ``x`` to ``x_new`` as ``attempt`` planned
         (``embedded``: the scheme's embedded solution at its end, if it has one)."""
