@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse
+from bratu_fold import discrete_fold
 
 import jaxanm
 
@@ -87,26 +88,6 @@ def test_bratu_fold_converges_at_second_order():
     assert abs(order - 2.0) < 0.01
     assert np.all(errors > 0)  # the discrete folds lie below the continuum one (C2 < 0)
     assert np.allclose(errors[:-1] / errors[1:], 4.0, atol=0.04)
-
-
-def discrete_fold(n: int) -> float:
-    """The discrete Bratu fold computed directly: Newton on the extended system R(u, lam) = 0,
-    R_u(u, lam) phi = 0, |phi| = 1 (numpy, dense), from the continuum fold's neighbourhood."""
-    h = 1.0 / (n + 1)
-    lap = (np.diag(np.full(n, -2.0)) + np.diag(np.ones(n - 1), 1) + np.diag(np.ones(n - 1), -1)) / h**2
-    x = np.linspace(h, 1.0 - h, n)
-    u, phi, lam = 1.2 * np.sin(np.pi * x), np.sin(np.pi * x) / np.sqrt(n / 2), 3.5
-    for _ in range(30):
-        e = np.exp(u)
-        jac = lap + np.diag(lam * e)
-        rows = np.block([[jac, np.zeros((n, n)), e[:, None]],
-                         [np.diag(lam * e * phi), jac, (e * phi)[:, None]],
-                         [np.zeros((1, n)), 2.0 * phi[None, :], np.zeros((1, 1))]])
-        step = np.linalg.solve(rows, -np.concatenate([lap @ u + lam * e, jac @ phi, [phi @ phi - 1.0]]))
-        u, phi, lam = u + step[:n], phi + step[n:2 * n], lam + step[-1]
-        if np.max(np.abs(step)) < 1e-14:
-            break
-    return lam
 
 
 def test_bratu_fold_from_the_series_matches_the_direct_fold():

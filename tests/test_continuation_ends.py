@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse
+from bratu_fold import discrete_fold
 
 import jaxanm
 
@@ -44,29 +45,6 @@ def rows(n: int, form: str, c: float = 1.0) -> dict:
     """The params of :func:`bratu` for the residual written with (``"unscaled"``) or without
     (``"scaled"``) the 1/h^2 factor, unknowns ``c u``."""
     return {"rows": 1.0 if form == "unscaled" else 1.0 / (n + 1) ** 2, "c": c}
-
-
-@functools.lru_cache(maxsize=None)
-def discrete_fold(n: int) -> float:
-    """The discrete Bratu fold lam_c(N), solved directly: Newton on R(u, lam) = 0,
-    R_u(u, lam) phi = 0, phi . phi = 1 (dense numpy; the unscaled form, whose fold is the
-    scaled form's), from the continuum fold's neighbourhood, until its step is below 1e-12 of
-    the state (quadratic convergence: the step after it is at round-off)."""
-    h = 1.0 / (n + 1)
-    lap = (np.diag(np.full(n, -2.0)) + np.diag(np.ones(n - 1), 1) + np.diag(np.ones(n - 1), -1)) / h**2
-    x = np.linspace(h, 1.0 - h, n)
-    u, phi, lam = 1.2 * np.sin(np.pi * x), np.sin(np.pi * x) / np.sqrt(n / 2), 3.5
-    for _ in range(40):
-        e = np.exp(u)
-        jac = lap + np.diag(lam * e)
-        rows = np.block([[jac, np.zeros((n, n)), e[:, None]],
-                         [np.diag(lam * e * phi), jac, (e * phi)[:, None]],
-                         [np.zeros((1, n)), 2.0 * phi[None, :], np.zeros((1, 1))]])
-        step = np.linalg.solve(rows, -np.concatenate([lap @ u + lam * e, jac @ phi, [phi @ phi - 1.0]]))
-        u, phi, lam = u + step[:n], phi + step[n:2 * n], lam + step[-1]
-        if np.max(np.abs(step)) < 1e-12 * np.max(np.abs(u)):
-            return float(lam)
-    raise AssertionError(f"the direct fold solve did not converge for N = {n}")
 
 
 def check_ends_well(branch: jaxanm.Branch, n: int):
