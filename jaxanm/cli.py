@@ -54,7 +54,7 @@ from pathlib import Path
 from jaxanm import compile_cache
 from jaxanm._progress import ProgressBar
 from jaxanm.errors import InputError, SingularMatrixError, StepFailure, did_you_mean
-from jaxanm.fsw.scene import SOLVER_NAMES, SOLVER_OPTIONS, override_keys
+from jaxanm.fsw.scene import REGISTERED_KIND, SOLVER_NAMES, SOLVER_OPTIONS, override_keys
 
 PROG = "jaxanm"
 DEFAULT_SCENE = "fsw"
@@ -207,7 +207,7 @@ def _check_solver_options(scene, overrides: dict, order_given: bool) -> None:
     scene's solver does not take (a scene file keeps every solver's fields, a command line names
     what it means to change)."""
     kind = scene.solver.kind
-    takes = SOLVER_OPTIONS[next(k for k, v in SOLVER_NAMES.items() if v == kind)]
+    takes = SOLVER_OPTIONS[REGISTERED_KIND[kind]]
     if order_given and "order" not in takes:
         raise UsageError(f"--order sets the ANM's series order (solver.order); the {kind} solver has none "
                          f"(it takes {', '.join(takes)}): drop --order, or add --solver anm")

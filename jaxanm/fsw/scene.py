@@ -41,6 +41,7 @@ from .scene_sections import (  # noqa: F401 - re-exported: the sections are part
     MAX_SAMPLES,
     MAX_STEPS,
     NAME_CHARS,
+    REGISTERED_KIND,
     SOLVER_KINDS,
     SOLVER_NAMES,
     SOLVER_OPTIONS,

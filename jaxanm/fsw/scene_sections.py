@@ -484,7 +484,7 @@ class SolverSpec(_Section):
     def options(self) -> dict:
         """The fields the kind's solver takes, as its keyword arguments (``max_iter`` = 0 left out:
         the solver's default)."""
-        opts = {name: getattr(self, name) for name in SOLVER_OPTIONS[_REGISTERED_KIND[self.kind]]}
+        opts = {name: getattr(self, name) for name in SOLVER_OPTIONS[REGISTERED_KIND[self.kind]]}
         if opts.get("max_iter") == 0:
             del opts["max_iter"]
         return opts
@@ -492,10 +492,10 @@ class SolverSpec(_Section):
     def make(self):
         """The :mod:`jaxanm` solver of this kind with these options (e.g. ``jaxanm.ANM``), built by
         :func:`jaxanm.make_solver`, which validates them."""
-        return make_solver(_REGISTERED_KIND[self.kind], **self.options())
+        return make_solver(REGISTERED_KIND[self.kind], **self.options())
 
 
-_REGISTERED_KIND = {scene_kind: kind for kind, scene_kind in SOLVER_NAMES.items()}
+REGISTERED_KIND = {scene_kind: kind for kind, scene_kind in SOLVER_NAMES.items()}
 """``solver.kind`` of a scene -> the registered kind (:data:`SOLVER_NAMES` inverted)."""
 
 

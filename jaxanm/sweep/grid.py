@@ -68,7 +68,15 @@ import tomllib
 from pathlib import Path
 
 from jaxanm.errors import InputError
-from jaxanm.fsw.scene import SOLVER_NAMES, SOLVER_OPTIONS, Scene, SceneError, load_scene, override_keys
+from jaxanm.fsw.scene import (
+    REGISTERED_KIND,
+    SOLVER_NAMES,
+    SOLVER_OPTIONS,
+    Scene,
+    SceneError,
+    load_scene,
+    override_keys,
+)
 from jaxanm.internal import flag, integer, positive, real
 
 __all__ = ["IDA", "RICHARDSON", "SOLVER_KEYS", "Grid", "GridError", "Richardson", "Task", "grid_from_dict",
@@ -300,7 +308,7 @@ def _list_valued(flat: dict, base: Scene) -> set:
 def _solver_points(value, base: Scene, source: str) -> list[dict]:
     """Every point of the ``solvers`` entries: ``{"solver.<key>": value}`` (kind as the scene names
     it, or ``ida``) and the entry's own scene overrides (dotted keys)."""
-    scene_kinds = {v: k for k, v in SOLVER_NAMES.items()}
+    scene_kinds = REGISTERED_KIND
     kinds_text = ", ".join([*SOLVER_NAMES, IDA])
     points = []
     for i, raw in enumerate(_entries(value, "solvers", source)):
@@ -378,7 +386,7 @@ def _task_ids(points: list[dict], keys: tuple) -> list[str]:
             if key not in p:
                 continue
             if key == "solver.kind":
-                parts.append({v: k for k, v in SOLVER_NAMES.items()}.get(p[key], p[key]))
+                parts.append(REGISTERED_KIND.get(p[key], p[key]))
             else:
                 parts.append(f"{end if ends.count(end) == 1 else key}={_format(p[key])}")
         ids.append(re.sub(r"[^A-Za-z0-9_.+=-]", "_", "-".join(parts)) or "run")
