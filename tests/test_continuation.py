@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse
-from bratu_fold import discrete_fold
+from model_problems import discrete_fold
 
 import jaxanm
 

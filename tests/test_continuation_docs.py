@@ -7,7 +7,7 @@ import re
 
 import numpy as np
 import pytest
-from bratu_fold import discrete_fold
+from model_problems import discrete_fold
 
 PAGE = pathlib.Path(__file__).resolve().parents[1] / "docs" / "continuation.md"
 

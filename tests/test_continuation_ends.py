@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse
-from bratu_fold import discrete_fold
+from model_problems import bratu_2d, discrete_fold
 
 import jaxanm
 
@@ -148,15 +148,8 @@ M2 = 8  # the 2D grid: M2 x M2 interior points
 H2 = 1.0 / (M2 + 1)
 
 
-def bratu_2d(u, lam, params):
-    """The 2D Bratu residual on the unit square, 5-point Laplacian on M2 x M2 interior points."""
-    g = jnp.pad(u.reshape(M2, M2), 1)
-    lap = (g[2:, 1:-1] + g[:-2, 1:-1] + g[1:-1, 2:] + g[1:-1, :-2] - 4.0 * g[1:-1, 1:-1]) / H2**2
-    return (lap + lam * jnp.exp(g[1:-1, 1:-1])).ravel()
-
-
 def laplacian_2d() -> np.ndarray:
-    """The 5-point Laplacian of :func:`bratu_2d`, dense."""
+    """The 5-point Laplacian of ``bratu_2d(M2)``, dense."""
     line = np.diag(np.full(M2, -2.0)) + np.diag(np.ones(M2 - 1), 1) + np.diag(np.ones(M2 - 1), -1)
     return (np.kron(line, np.eye(M2)) + np.kron(np.eye(M2), line)) / H2**2
 
@@ -171,7 +164,7 @@ def test_bratu_2d_from_rest_passes_its_fold_and_ends_well():
     n = M2 * M2
     line = scipy.sparse.diags([1, 1, 1], [-1, 0, 1], shape=(M2, M2), dtype=bool)
     pattern = (scipy.sparse.kron(line, scipy.sparse.eye(M2)) + scipy.sparse.kron(scipy.sparse.eye(M2), line)) != 0
-    branch = jaxanm.continuation(bratu_2d, np.zeros(n), 0.0, sparsity=pattern, max_steps=60)
+    branch = jaxanm.continuation(bratu_2d(M2), np.zeros(n), 0.0, sparsity=pattern, max_steps=60)
     print(f"\n{branch.a.size} steps, {branch.stats.factorizations} factorisations: {branch.message}; {branch.events}")
     assert branch.stopped == "max_steps" and np.all(np.isfinite(branch.u))
     (fold,) = branch.events_of("fold")

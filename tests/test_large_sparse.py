@@ -4,12 +4,10 @@ followers (slow), against the continuum's fold and its discretisation error."""
 
 from __future__ import annotations
 
-import functools
-
-import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse
+from model_problems import bratu_2d
 
 import jaxanm
 from jaxanm import _factorization
@@ -46,19 +44,6 @@ def test_an_ordering_is_made_once_per_pattern(monkeypatch):
 LAM_CONTINUUM = 6.808124
 """The fold of the continuum 2D Bratu problem on the unit square, to the digits quoted in the
 literature (Bratu-Gelfand; e.g. 6.808124423): within 5e-7."""
-
-
-@functools.lru_cache(maxsize=None)
-def bratu_2d(m: int):
-    """``Delta u + lam e^u`` by the 5-point Laplacian on m x m interior points of the unit square."""
-    h = 1.0 / (m + 1)
-
-    def residual(u, lam, params):
-        grid = jnp.pad(u.reshape(m, m), 1)
-        lap = (grid[2:, 1:-1] + grid[:-2, 1:-1] + grid[1:-1, 2:] + grid[1:-1, :-2] - 4.0 * grid[1:-1, 1:-1]) / h**2
-        return (lap + lam * jnp.exp(grid[1:-1, 1:-1])).ravel()
-
-    return residual
 
 
 def _branch(method, m: int) -> jaxanm.Branch:

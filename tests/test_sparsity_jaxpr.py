@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse
-from model_problems import bratu_1d, heat_1d, impulsive_cubic
+from model_problems import bratu_1d, bratu_2d, heat_1d, impulsive_cubic
 from test_continuation import bratu, truss_residual
 
 import jaxanm
@@ -129,24 +129,13 @@ def test_model_step_residuals_match_dense_probes(name):
     np.testing.assert_array_equal(detected, probes)
 
 
-def _bratu_2d(m: int):
-    h = 1.0 / (m + 1)
-
-    def residual(u, lam, params):
-        grid = jnp.pad(u.reshape(m, m), 1)
-        lap = (grid[2:, 1:-1] + grid[:-2, 1:-1] + grid[1:-1, 2:] + grid[1:-1, :-2] - 4.0 * grid[1:-1, 1:-1]) / h**2
-        return (lap + lam * jnp.exp(grid[1:-1, 1:-1])).ravel()
-
-    return residual
-
-
 def _lam_factor(u, lam, params):
     """An entry with a factor lam: the coupling to u[i+1] vanishes at lam = 0."""
     up = jnp.concatenate([u, jnp.zeros(1)])
     return u**3 - 2.0 * u + lam * up[1:]
 
 
-PATH_RESIDUALS = {"bratu 1D": (bratu(9), 9), "bratu 2D": (_bratu_2d(5), 25), "truss": (truss_residual, 2),
+PATH_RESIDUALS = {"bratu 1D": (bratu(9), 9), "bratu 2D": (bratu_2d(5), 25), "truss": (truss_residual, 2),
                   "factor lam": (_lam_factor, 6)}
 
 
@@ -170,7 +159,7 @@ def test_continuation_without_a_pattern_finds_it_from_the_jaxpr():
     m = 8
     line = scipy.sparse.diags([1, 1, 1], [-1, 0, 1], shape=(m, m), dtype=bool)
     pattern = scipy.sparse.kron(line, scipy.sparse.eye(m)) + scipy.sparse.kron(scipy.sparse.eye(m), line)
-    runs = [jaxanm.newton_continuation(_bratu_2d(m), np.zeros(m * m), 0.0, max_steps=3, jacobian="sparse",
+    runs = [jaxanm.newton_continuation(bratu_2d(m), np.zeros(m * m), 0.0, max_steps=3, jacobian="sparse",
                                        sparsity=given) for given in (pattern, None)]
     np.testing.assert_array_equal(runs[0].u, runs[1].u)
 
@@ -232,7 +221,7 @@ def test_a_pattern_with_a_dense_row_is_refused_before_it_is_coloured():
 def test_dense_jacobians_that_cannot_fit_are_refused_before_they_start():
     """A million unknowns: a dense Jacobian is 8 TB; every entry point says which argument to change."""
     n = 10**6
-    residual = _bratu_2d(1000)
+    residual = bratu_2d(1000)
     with pytest.raises(jaxanm.InputError, match="jacobian='dense'.*jacobian='sparse'"):
         jaxanm.continuation(residual, np.zeros(n), 0.0, jacobian="dense", max_steps=1)
     with pytest.raises(jaxanm.InputError, match="jacobian='dense'.*jacobian='sparse'"):
@@ -247,7 +236,7 @@ def test_large_patterns_cost_no_dense_jacobian():
     probes formed; the jaxpr gives the 5-point pattern (each row its point and its grid
     neighbours: 5 m^2 - 4 m entries)."""
     m = 300
-    step = lambda x, x_old, t, dt, params: _bratu_2d(m)(x, t, params)  # noqa: E731
+    step = lambda x, x_old, t, dt, params: bratu_2d(m)(x, t, params)  # noqa: E731
     pattern = detect_sparsity(step, np.zeros(m * m), None, 1.0, None, None)
     line = scipy.sparse.diags([1, 1, 1], [-1, 0, 1], shape=(m, m), dtype=bool)
     expected = (scipy.sparse.kron(line, scipy.sparse.eye(m)) + scipy.sparse.kron(scipy.sparse.eye(m), line)) != 0
