@@ -221,7 +221,7 @@ def _check_inputs(x0, t0, t_out, rtol, atol, scale, h0, yp0, ic_dt, max_steps):
     positive("h0", h0, hint="the dt of the DAE residual's row scalings")
     ic_dt = 1e-6 * span if ic_dt is None else ic_dt
     if yp0 is None:
-        if not 0 < 2 * positive("ic_dt", ic_dt) < t_out[0] - t0:
+        if not 2 * positive("ic_dt", ic_dt) < t_out[0] - t0:
             raise InputError(f"ic_dt must be positive with t0 + 2 ic_dt < the first output time {t_out[0]!r} "
                              f"(the consistent start takes two implicit-Euler steps of ic_dt), got {ic_dt!r}")
     else:

@@ -499,15 +499,16 @@ REGISTERED_KIND = {scene_kind: kind for kind, scene_kind in SOLVER_NAMES.items()
 """``solver.kind`` of a scene -> the registered kind (:data:`SOLVER_NAMES` inverted)."""
 
 
-def _solver_fields(kind: str) -> set:
-    """The option names of the registered solver ``kind`` (every step solver is a dataclass)."""
+def _scene_options(kind: str) -> tuple:
+    """The ``solver.*`` fields the registered solver ``kind`` takes, in the scene's order (every
+    step solver is a dataclass: its fields are its options)."""
     solver = make_solver(kind)
     assert dataclasses.is_dataclass(solver)
-    return {f.name for f in dataclasses.fields(solver)}
+    takes = {f.name for f in dataclasses.fields(solver)}
+    return tuple(f.name for f in dataclasses.fields(SolverSpec) if f.name in takes)
 
 
-SOLVER_OPTIONS = {kind: tuple(f.name for f in dataclasses.fields(SolverSpec) if f.name in _solver_fields(kind))
-                  for kind in SOLVER_NAMES}
+SOLVER_OPTIONS = {kind: _scene_options(kind) for kind in SOLVER_NAMES}
 """For each registered solver kind, the ``solver.*`` fields of a scene its solver takes (in the
 scene's order): what :meth:`SolverSpec.make` passes on, and the settings a sweep's ``[[solvers]]``
 entry may give for that kind."""
