@@ -215,7 +215,8 @@ class ExtendedSystem:
     """``R(U) = 0`` for ``U = (u, lam)``: residuals, linearisations (bordered, factorised,
     counted in ``stats``) and the series of the residual along a path.  ``factorize``: the
     hook ``(matrix, stats) -> object with solve(rhs)`` (default :func:`jaxanm.factorize`).
-    ``residual_function`` and ``params`` are the problem's (read by event location)."""
+    ``residual_function`` and ``params`` are the problem's (read by event location); ``sparsity``
+    the sparse R_u's pattern, given or detected (None when dense)."""
 
     def __init__(self, residual, U0, params, scale, jacobian: str, sparsity, stats: Stats, factorize=None):
         n = U0.size - 1
@@ -227,7 +228,7 @@ class ExtendedSystem:
         kind = jacobian_kind(jacobian, sparsity, n)
         if kind == "sparse" and sparsity is None:
             sparsity = self._detected_pattern(U0)
-        self.kind = kind
+        self.kind, self.sparsity = kind, sparsity  # the pattern given or detected (None: dense)
         self._problem = Problem(_step_form(residual), scale[:-1], stats, kind, sparsity)
 
     def _detected_pattern(self, U0):

@@ -75,12 +75,16 @@ def critical_load(branch: Branch, event: Event) -> Callable:
                          "use a branch returned by jaxanm.continuation or jaxanm.newton_continuation")
     residual, options = branch.source.residual, branch.source.options
     last = {"U": np.append(event.u, event.lam), "phi": np.asarray(event.data["null_vector"])}
+    # R_u's pattern, detected (from the residual's jaxpr: it holds for any params) at the first
+    # location only, so that a design loop does not detect it again at every call
+    pattern = {"sparsity": options["sparsity"]}
 
     def locate(params):
         """(lam, u, psi) of the fold for ``params``, on the host."""
         for U, phi in ((last["U"], last["phi"]), (np.append(event.u, event.lam), event.data["null_vector"])):
-            system = ExtendedSystem(residual, U, params, branch.scale, options["jacobian"], options["sparsity"],
+            system = ExtendedSystem(residual, U, params, branch.scale, options["jacobian"], pattern["sparsity"],
                                     Stats(), options["factorize"])
+            pattern["sparsity"] = system.sparsity
             found = locate_fold(system, U, phi, step=event.step)
             if found.converged:
                 phi = found.null[:-1, 0]
