@@ -41,12 +41,14 @@ def test_corner_of_the_process_window_meets_the_physical_bounds(tmp_path):
     T0 = runs[0]["scene"]["thermal"]["T0"]
     for (omega, U), p in process.items():
         assert p["t"] == pytest.approx(T_END)
-        # Energy of a sticking tool: the torque's power is the plastic dissipation (no friction
-        # heat, delta = 1).  The torque comes from the one-sided MLS shear at the edge points,
-        # the dissipation from a quadrature of the whole band (1.7 points across it at 0.06 mm):
-        # 3 % is the resolution of the edge stress (0.972 of the closed form on a Newtonian
-        # 0.1 mm cloud, docs/notes/traverse_and_slip.md), with room for the power law.
-        assert abs(p["power"] - p["dissipation"]) < 0.05 * p["power"], (omega, U, p)
+        # Energy: the plastic dissipation takes up the torque's power (a sticking tool: no
+        # friction heat) plus the power of the traction on the ring r = R2, which pushes the
+        # plate past the pin at U (the machine's traverse force times U, >= 0).  The torque
+        # comes from the one-sided MLS shear at the edge points, the dissipation from a
+        # quadrature of the band (1.7 points across it at 0.06 mm): 3 % is the resolution of
+        # the edge stress (0.972 of the closed form on a Newtonian 0.1 mm cloud,
+        # docs/notes/traverse_and_slip.md).
+        assert p["dissipation"] > 0.97 * p["power"], (omega, U, p)
         assert p["power"] == pytest.approx(p["torque"] * omega, rel=1e-12)
         # heated, far below aluminium's melting point (933 K) after 5 ms
         assert T0 < p["peak_T"] < 933.0
@@ -54,6 +56,15 @@ def test_corner_of_the_process_window_meets_the_physical_bounds(tmp_path):
         assert p["trailing_minus_leading"] > 0.0, (omega, U, p)
         # mass conservation with the pressure: within 1 % of the through-flow
         assert p["mass_flux_error"] < 0.01
+    for omega in {omega for omega, _ in process}:
+        # the traverse work grows with the travel speed; at the window's smallest advance
+        # (0.05 mm) it is below 0.2 % of the torque's (U / (pi omega R1)), so the balance
+        # closes there within the edge stress's 3 %
+        (slow, p_slow), (fast, p_fast) = sorted((U, p) for (o, U), p in process.items() if o == omega)
+        excess = [p["dissipation"] / p["power"] - 1.0 for p in (p_slow, p_fast)]
+        assert excess[1] > excess[0], (omega, excess)
+        if 2e3 * math.pi * slow / omega < 0.051:
+            assert abs(excess[0]) < 0.03, (omega, slow, excess)
     for U in {U for _, U in process}:
         slow, fast = sorted((omega, p["peak_T"]) for (omega, u), p in process.items() if u == U)
         assert fast[1] > slow[1], f"peak T at U = {U} m/s does not rise with omega: {slow}, {fast}"
