@@ -219,11 +219,17 @@ def markdown(data: dict) -> str:
               "## How far from steady", "",
               "The axisymmetric continuum of fsw_weld without the travel (`jaxanm.fsw.axisymmetric`): interface "
               "temperature at t_end and at 80 s (steady: its change from 40 s is in the last column).", "",
+              "Beside it, the steady temperature as Arbegast's ratio (degrees C) and his band (K 0.65, alpha 0.04 to "
+              "K 0.75, alpha 0.06) at the largest heat index of that omega's runs (its slowest travel).", "",
               "| omega (rad/s) | T(R1) at t_end (K) | T(R1) steady (K) | fraction of the steady rise | power at t_end "
-              "/ steady | change 40-80 s (K) |", "| ---: | ---: | ---: | ---: | ---: | ---: |"]
+              "/ steady | change 40-80 s (K) | steady T / T_melt | Arbegast's band |",
+              "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for s in data["steady"]:
+        index = max(r["heat_index"] for r in rows if r["omega"] == s["omega"])
+        ratio = (s["T_R1_steady"] - 273.15) / fit["T_melt_C"]
         lines.append(f"| {s['omega']:g} | {s['T_R1_t_end']:.1f} | {s['T_R1_steady']:.1f} | {s['fraction']:.3f} | "
-                     f"{s['power_t_end'] / s['power_steady']:.2f} | {s['T_R1_change_last']:.2g} |")
+                     f"{s['power_t_end'] / s['power_steady']:.2f} | {s['T_R1_change_last']:.2g} | {ratio:.3f} | "
+                     f"{0.65 * index ** 0.04:.2f}-{0.75 * index ** 0.06:.2f} |")
     lines += ["", "## Schmidt and Hattel's sticking heat in 2-D", "",
               "`Q = 2 pi tau omega R1^2` per unit thickness, tau the law's shear flow stress at the interface's "
               "mean temperature and strain rate (column `tau law`); `Q_sticking / power` sets it against the run's "
