@@ -52,6 +52,9 @@ PRODUCERS = [
     ("anm_vs_mnewton_fine", "benchmarks/anm_vs_mnewton_fine.py"),
     ("start_from_rest", "benchmarks/start_from_rest.py"),
     ("stiff_controller", "benchmarks/stiff_controller.py"),
+    ("process_window", "benchmarks/process_window.py (from a jaxanm sweep)"),
+    ("window_corners", "benchmarks/window_corners.py"),
+    ("window_limits", "benchmarks/window_limits.py"),
 ]
 
 
