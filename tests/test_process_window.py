@@ -70,3 +70,20 @@ def test_corner_of_the_process_window_meets_the_physical_bounds(tmp_path):
         assert fast[1] > slow[1], f"peak T at U = {U} m/s does not rise with omega: {slow}, {fast}"
     # the advance per revolution of every corner is inside the window
     assert all(0.05 <= 2e3 * math.pi * U / omega <= 1.0 + 1e-9 for omega, U in process)
+
+
+def test_speeds_beyond_the_ranges_are_refused_naming_the_key():
+    """Beyond the window: an advance of 20 mm per revolution at 44.7 rad/s (U = 0.142 m/s, one of
+    benchmarks/window_limits.py's cases) and a tool faster than 1000 rad/s are refused when the
+    scene is read, naming the key and its range; the same advance at 10 rad/s is a valid scene
+    (its start flow reaches it: benchmarks/results/window_limits.md)."""
+    from jaxanm.fsw.scene import SceneError, load_scene
+
+    base = load_scene("fsw_weld")
+    U = 20e-3 * 44.721 / (2 * math.pi)
+    with pytest.raises(SceneError, match=r"tool\.traverse_speed.*must be in \[0, 0\.1\]"):
+        base.with_overrides({"tool.omega": 44.721, "tool.traverse_speed": U})
+    with pytest.raises(SceneError, match=r"tool\.omega.*must be in \(0, 1000\]"):
+        base.with_overrides({"tool.omega": 1500.0})
+    slow = base.with_overrides({"tool.omega": 10.0, "tool.traverse_speed": 20e-3 * 10.0 / (2 * math.pi)})
+    assert 2e3 * math.pi * slow.tool.traverse_speed / slow.tool.omega == pytest.approx(20.0)
