@@ -87,3 +87,18 @@ def test_speeds_beyond_the_ranges_are_refused_naming_the_key():
         base.with_overrides({"tool.omega": 1500.0})
     slow = base.with_overrides({"tool.omega": 10.0, "tool.traverse_speed": 20e-3 * 10.0 / (2 * math.pi)})
     assert 2e3 * math.pi * slow.tool.traverse_speed / slow.tool.omega == pytest.approx(20.0)
+
+
+def test_a_cell_peclet_number_beyond_the_measured_one_is_refused_naming_the_spacing():
+    """The heat step's collocated transport has no growing mode up to a cell Peclet number of 11
+    at the tool edge (benchmarks/results/heat_peclet.md): a travelling tool at 1000 rad/s on
+    fsw_small's 0.75 mm spacing (20.6) is refused naming geometry.dr and the number; on the weld's
+    0.06 mm band the same tool (1.65) is a valid scene."""
+    from jaxanm.fsw.effects import PECLET_MAX
+    from jaxanm.fsw.scene import SceneError, load_scene
+
+    base = load_scene("fsw_weld").with_overrides({"tool.omega": 1000.0})
+    g, m = base.geometry, base.material
+    assert (1000.0 * g.R1 + base.tool.traverse_speed) * g.dr * m.rho * m.Cp / m.k < PECLET_MAX
+    with pytest.raises(SceneError, match=r"geometry\.dr.*cell Peclet number .* = 20\.6 .*beyond 11"):
+        base.with_overrides({"geometry.layout": "polar", "geometry.dr": 7.5e-4})

@@ -55,6 +55,7 @@ PRODUCERS = [
     ("process_window", "benchmarks/process_window.py (from a jaxanm sweep)"),
     ("window_corners", "benchmarks/window_corners.py"),
     ("window_limits", "benchmarks/window_limits.py"),
+    ("heat_peclet", "benchmarks/heat_peclet.py"),
 ]
 
 

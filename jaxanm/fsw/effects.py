@@ -28,8 +28,8 @@ from typing import Callable, Iterable
 
 from ..errors import InputError
 
-__all__ = ["BASE_CONSTANTS", "CONSTANTS", "EFFECTS", "Effect", "Effects", "FIELDS", "Parameter", "REGISTRY",
-           "ROLES", "scene_value"]
+__all__ = ["BASE_CONSTANTS", "CONSTANTS", "EFFECTS", "Effect", "Effects", "FIELDS", "PECLET_MAX", "Parameter",
+           "REGISTRY", "ROLES", "scene_value"]
 
 ROLES = {
     "unknowns": "creates unknown fields (its entry in `fields`)",
@@ -211,6 +211,27 @@ _TRAVERSE = ("The tool travels along +x at `U = tool.traverse_speed`; seen from 
              "across the trailing side and re-enter on the leading side.  U = 0 gives the scene without it exactly.")
 
 
+PECLET_MAX = 11.0
+"""The largest cell Peclet number ``(omega R1 + U) dr / alpha`` at the tool edge (``dr`` its
+spacing, ``alpha`` the plate's diffusivity) a travelling tool may ask for: the heat step's
+transport term is collocated without upwinding, and on the weld's cloud under a uniform stream
+it has no growing mode up to a cell Peclet number of 11 there and growing modes at the plate
+edge at 33 (benchmarks/results/heat_peclet.md).  The window's speeds on the weld scenes' cloud
+stay below 0.4."""
+
+
+def _traverse_check(scene) -> list:
+    t, g, m = scene.tool, scene.geometry, scene.material
+    peclet = (t.omega * g.R1 + t.traverse_speed) * g.dr * m.rho * m.Cp / m.k
+    if peclet > PECLET_MAX:
+        return [("geometry.dr", g.dr,
+                 f"gives the cell Peclet number (omega R1 + U) dr / alpha = {peclet:.3g} at the tool edge "
+                 f"(tool.omega = {t.omega:g} rad/s, tool.traverse_speed = {t.traverse_speed:g} m/s), beyond "
+                 f"{PECLET_MAX:g}, the largest at which the heat step's transport term was measured free of "
+                 "growing modes (benchmarks/results/heat_peclet.md); refine geometry.dr or lower tool.omega")]
+    return []
+
+
 _register(
     Effect("slip", _SLIP,
            frozenset({"momentum rows", "heat rows", "heat source", "moving boundary", "start flow"}),
@@ -227,7 +248,8 @@ _register(
                e="traverse", why="the plate streaming through the disc would carry the moving cloud out of it")),),
            parameters=(Parameter("tool.traverse_speed", "U_tr", 0.0, 0.1, "m/s",
                                  "the tool's travel speed along +x (travel along -x gives the same fields turned "
-                                 "by 180 degrees)"),)),
+                                 "by 180 degrees)"),),
+           check=_traverse_check),
 )
 
 def _incompressible_check(scene) -> list:
