@@ -75,7 +75,7 @@ def markdown(data: dict) -> str:
              "ANM rows are the process-window sweep's, modified Newton's are run by the script); load average "
              f"{data['load'][0]:.1f} / {data['load'][1]:.1f} before / after the modified-Newton runs.  Walls: the "
              "time loop's (`Stats.wall_time_s`), not comparable between the solvers: the ANM's ran warm in the "
-             "sweep's worker, modified Newton's include their compilation and ran at nice 19 beside other jobs "
+             "sweep's worker, modified Newton's include their compilation and ran at nice 10-19 beside other jobs "
              "on a shared machine.  The counts are what to compare.", "",
              "| omega (rad/s) | U (mm/s) | advance (mm/rev) | solver | outcome | steps | factorisations | "
              "series orders | Newton iterations | wall (s) |",
