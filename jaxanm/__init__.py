@@ -13,9 +13,10 @@ from typing import TYPE_CHECKING
 
 from ._acceptance import evaluate_series, validity_range
 from ._constant_step import ConstantStepSize
-from ._factorization import Factorization, factorize
+from ._factorization import Factorization
 from ._hooks import Remap
 from ._integrate import Solution, integrate
+from ._problem import factorize
 from ._run_checkpoint import stored_host_state
 from ._saveat import SaveAt
 from ._scheme import BDF2, ESDIRK, ImplicitEuler, SemiDiscrete, TimeScheme, make_scheme, scheme_names
