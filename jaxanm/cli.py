@@ -341,10 +341,10 @@ def what_to_try(scene, exc: StepFailure | SingularMatrixError) -> str:
     the options that apply to its solver, effects and start, the cheapest first."""
     kind, tries = scene.solver.kind, []
     if kind == "anm":
-        more = max(200, 4 * scene.solver.max_substeps)
+        more = max(200, 4 * scene.solver.setting("max_substeps"))
         tries.append(f"more continuation sub-steps (--set solver.max_substeps={more})")
     else:
-        tries.append(f"more iterations (--set solver.max_iter={2 * scene.solver.make().max_iter})")
+        tries.append(f"more iterations (--set solver.max_iter={2 * scene.solver.setting('max_iter')})")
     if {"inertia", "conduction", "lagrangian", "tracers"} & set(scene.effects):  # else dt changes no step
         tries.append(f"a smaller time step than the run's own halvings reached (--set time.dt={scene.time.dt / 100:g})")
     tries.append("another solver (" + ", ".join(f"--solver {name}" for name, k in SOLVER_NAMES.items()

@@ -278,8 +278,9 @@ def _and_requirements(name: str) -> str:
 
 
 def _section_dict(obj) -> dict:
-    return {f.name: (list(v) if isinstance(v := getattr(obj, f.name), tuple) else v)
-            for f in dataclasses.fields(obj)}
+    """A section's keys in the TOML layout; an unset one (None: its owner's default) is left out."""
+    return {f.name: (list(v) if isinstance(v, tuple) else v)
+            for f in dataclasses.fields(obj) if (v := getattr(obj, f.name)) is not None}
 
 
 def _section_from(cls, table, where: str):
