@@ -21,6 +21,7 @@ from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_
 from jaxanm.fsw.physics import mu_reference
 from jaxanm.fsw.scene import (
     EFFECTS,
+    SOLVER_KINDS,
     Geometry,
     Material,
     Scene,
@@ -98,13 +99,22 @@ def test_an_unset_solver_setting_is_the_solvers_own_default():
     solvers declare the option names the scene's section offers."""
     bare = Scene.from_dict({"solver": {"kind": "anm"}})
     assert bare.solver.make() == jaxanm.ANM() and "order" not in bare.to_dict()["solver"]
-    for kind, solver in (("newton", jaxanm.Newton()), ("modified_newton", jaxanm.ModifiedNewton())):
+    for kind, solver in (("newton", jaxanm.Newton()), ("mnewton", jaxanm.ModifiedNewton())):
         assert bare.with_overrides({"solver.kind": kind}).solver.make() == solver
     given = bare.with_overrides({"solver.order": "9", "solver.kind": "newton"})  # kept, passed to the ANM only
     assert given.solver.make() == jaxanm.Newton() and given.with_overrides({"solver.kind": "anm"}).solver.order == 9
     offered = {f.name for f in dataclasses.fields(SolverSpec)} - {"kind"}
     taken = {f.name for kind in jaxanm.solver_kinds() for f in dataclasses.fields(jaxanm.make_solver(kind))}
     assert offered == taken
+
+
+def test_one_name_per_solver_kind_the_former_spelling_warns():
+    """A scene's ``solver.kind`` is the registered kind (the CLI's and the sweeps' name); the
+    former ``modified_newton`` still loads, as ``mnewton``, with a deprecation warning."""
+    assert set(SOLVER_KINDS) == set(jaxanm.solver_kinds())
+    with pytest.warns(DeprecationWarning, match="solver.kind = 'modified_newton' is deprecated: write 'mnewton'"):
+        old = Scene.from_dict({"solver": {"kind": "modified_newton", "max_rate": 0.3}})
+    assert old.solver.kind == "mnewton" and old.solver.make() == jaxanm.ModifiedNewton(max_rate=0.3)
 
 
 def test_a_refused_solver_setting_is_named_by_its_scene_key():
@@ -120,7 +130,7 @@ def test_a_refused_solver_setting_is_named_by_its_scene_key():
 
 def test_max_rate_reaches_modified_newton():
     """``solver.max_rate`` (a sweep tunes modified Newton by it) reaches ``jaxanm.ModifiedNewton``."""
-    s = load_scene("fsw_small").with_overrides({"solver.kind": "modified_newton", "solver.max_rate": "0.3"})
+    s = load_scene("fsw_small").with_overrides({"solver.kind": "mnewton", "solver.max_rate": "0.3"})
     assert s.solver.make() == jaxanm.ModifiedNewton(tol=s.solver.tol, max_rate=0.3)
     assert load_scene("fsw_small").solver.setting("max_rate") == jaxanm.ModifiedNewton().max_rate
     with pytest.raises(SceneError, match=r"solver.max_rate.*\(0, 1\)"):

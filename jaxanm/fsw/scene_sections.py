@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 from .. import scheme_names
 from ..errors import InputError
@@ -22,6 +23,7 @@ __all__ = [
     "EDGE_ROWS",
     "EDGE_SOURCES",
     "Geometry",
+    "KIND_ALIASES",
     "LAYOUTS",
     "MAX_ORDER",
     "MAX_POINTS",
@@ -32,7 +34,6 @@ __all__ = [
     "Mechanics",
     "Probe",
     "SOLVER_KINDS",
-    "SOLVER_NAMES",
     "SOLVER_OPTIONS",
     "STARTS",
     "SceneError",
@@ -47,14 +48,12 @@ LAYOUTS = ("polar", "grid", "graded")
 EDGE_ROWS = ("flux", "half_cell")
 EDGE_SOURCES = ("point", "exponential")
 """Temperature rows of the plate-edge points (:class:`Thermal`)."""
-_SCENE_KIND = {"mnewton": "modified_newton"}
-"""A registered solver kind whose scenes spell it out (the file format keeps its longer name)."""
-SOLVER_NAMES = {kind: _SCENE_KIND.get(kind, kind) for kind in solver_kinds()}
-"""The table of solver kinds: registered kind (:func:`jaxanm.solver_kinds`: the CLI's
-``--solver``, a sweep grid's ``kind``) -> ``solver.kind`` of a scene (:class:`SolverSpec`).  A
-solver added to ``jaxanm/_solver/`` appears here by its kind."""
-SOLVER_KINDS = tuple(SOLVER_NAMES.values())
-"""The ``solver.kind`` values a scene accepts."""
+SOLVER_KINDS = solver_kinds()
+"""The ``solver.kind`` values a scene accepts: the registered kinds (:func:`jaxanm.solver_kinds`),
+the names the CLI's ``--solver`` and a sweep grid's ``kind`` take too.  A solver added to
+``jaxanm/_solver/`` appears here by its kind."""
+KIND_ALIASES = {"modified_newton": "mnewton"}
+"""Former spellings of a ``solver.kind``, still read (with a :class:`DeprecationWarning`) -> the kind."""
 STARTS = ("rest", "quasi_static", "continuation")
 """Flows at t = 0 (:class:`Mechanics`)."""
 MAX_POINTS = 200_000
@@ -450,7 +449,8 @@ class Time(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class SolverSpec(_Section):
-    """Nonlinear step solver: ``kind`` (a registered kind, ``anm | newton | modified_newton``) and
+    """Nonlinear step solver: ``kind`` (a registered kind, ``anm | newton | mnewton``; the former
+    ``modified_newton`` is read as ``mnewton``, with a :class:`DeprecationWarning`) and
     the settings of that kind's solver, handed as they are to :func:`jaxanm.make_solver`, which
     validates them.  A setting the scene does not give (None) is the solver's own default
     (:class:`jaxanm.ANM`, :class:`jaxanm.Newton`, :class:`jaxanm.ModifiedNewton`): the defaults
@@ -474,6 +474,10 @@ class SolverSpec(_Section):
     max_rate: float | None = None
 
     def _validate(self):
+        if self.kind in KIND_ALIASES:
+            warnings.warn(f"solver.kind = {self.kind!r} is deprecated: write {KIND_ALIASES[self.kind]!r}",
+                          DeprecationWarning, stacklevel=5)
+            object.__setattr__(self, "kind", KIND_ALIASES[self.kind])
         check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
         if self.order is not None:
             check("solver.order", self.order, self.order <= MAX_ORDER,
@@ -491,7 +495,7 @@ class SolverSpec(_Section):
         """The settings the kind's solver refuses: the first refused alone (each tried on the
         solver's defaults), else those without which the rest is accepted (a refused
         combination, e.g. ``pade`` with a low ``order``)."""
-        kind, given = REGISTERED_KIND[self.kind], self.options()
+        kind, given = self.kind, self.options()
 
         def refused(options: dict) -> bool:
             try:
@@ -508,7 +512,7 @@ class SolverSpec(_Section):
     def options(self) -> dict:
         """The settings the scene gives that the kind's solver takes, as its keyword arguments
         (unset ones, and ``max_iter`` = 0, left out: the solver's defaults)."""
-        opts = {name: getattr(self, name) for name in SOLVER_OPTIONS[REGISTERED_KIND[self.kind]]}
+        opts = {name: getattr(self, name) for name in SOLVER_OPTIONS[self.kind]}
         return {k: v for k, v in opts.items() if v is not None and not (k == "max_iter" and v == 0)}
 
     def setting(self, name: str):
@@ -518,19 +522,14 @@ class SolverSpec(_Section):
 
     @staticmethod
     def defaults(name: str) -> dict:
-        """The default of option ``name`` per scene kind whose solver takes it (the solver's own:
+        """The default of option ``name`` per kind whose solver takes it (the solver's own:
         what an unset ``solver.<name>`` means)."""
-        return {scene_kind: fields[name].default for kind, scene_kind in SOLVER_NAMES.items()
-                if name in (fields := _solver_fields(kind))}
+        return {kind: fields[name].default for kind in SOLVER_KINDS if name in (fields := _solver_fields(kind))}
 
     def make(self):
         """The :mod:`jaxanm` solver of this kind with these settings (e.g. ``jaxanm.ANM``), built by
         :func:`jaxanm.make_solver`, which validates them."""
-        return make_solver(REGISTERED_KIND[self.kind], **self.options())
-
-
-REGISTERED_KIND = {scene_kind: kind for kind, scene_kind in SOLVER_NAMES.items()}
-"""``solver.kind`` of a scene -> the registered kind (:data:`SOLVER_NAMES` inverted)."""
+        return make_solver(self.kind, **self.options())
 
 
 def _solver_fields(kind: str) -> dict:
@@ -547,7 +546,7 @@ def _scene_options(kind: str) -> tuple:
     return tuple(f.name for f in dataclasses.fields(SolverSpec) if f.name in takes)
 
 
-SOLVER_OPTIONS = {kind: _scene_options(kind) for kind in SOLVER_NAMES}
+SOLVER_OPTIONS = {kind: _scene_options(kind) for kind in SOLVER_KINDS}
 """For each registered solver kind, the ``solver.*`` fields of a scene its solver takes (in the
 scene's order): what :meth:`SolverSpec.make` passes on, and the settings a sweep's ``[[solvers]]``
 entry may give for that kind."""
