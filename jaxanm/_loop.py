@@ -48,7 +48,7 @@ from ._sensitivity_method import SensitivityMethod
 from ._solver import StepReport, StepSolver
 from ._step_size import Segment, Span, StepPlan, StepSizeController, Verdict
 from .checkpoint import SignalGuard, sigterm_as_interrupt
-from .errors import NonFiniteError, StepFailure
+from .errors import NonFiniteError, StepFailure, run_stopped
 from .stats import Stats
 
 
@@ -166,10 +166,10 @@ class TimeLoop:
                 while not self.controller.done(self.state.controller_state, self.state.k, self.state.t, self.span):
                     self._step()
         except BaseException as exc:
-            if isinstance(exc, (StepFailure, KeyboardInterrupt)):
-                exc.stats = stats  # the work done until the failure (factorisations, halvings, ...)
             if not (self.guard is not None and self.guard.held):
                 self._write_checkpoint()  # everything up to the last accepted step (not if recording it failed)
+            if isinstance(exc, (StepFailure, KeyboardInterrupt)):  # with the work done until it stopped
+                raise run_stopped(exc, stats=stats) from exc.__cause__
             raise
         finally:
             self.bar.close()

@@ -53,7 +53,7 @@ from pathlib import Path
 
 from jaxanm import compile_cache
 from jaxanm._progress import ProgressBar
-from jaxanm.errors import InputError, SingularMatrixError, StepFailure, did_you_mean
+from jaxanm.errors import InputError, RunStopped, SingularMatrixError, StepFailure, did_you_mean
 from jaxanm.fsw.scene import SOLVER_KINDS, SOLVER_OPTIONS, override_keys
 
 PROG = "jaxanm"
@@ -381,7 +381,7 @@ def coarse_cloud_lines(spatial: dict | None) -> list[str]:
 def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> str:
     """One-line report of a run that stopped early; writes the partial results it carries."""
     parts = [what]
-    partial = getattr(exc, "partial", None)
+    partial = exc.partial if isinstance(exc, RunStopped) else None
     if partial is not None:
         logger = logging.getLogger("jaxanm")
         level = logger.level

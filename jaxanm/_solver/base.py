@@ -163,8 +163,8 @@ class StepSolver(abc.ABC):
         """The state to retry from after :meth:`step` from ``state`` raised ``failure``: the one
         the failed step attached (e.g. holding the K* it factorised before failing, which a
         retry then reuses), else ``state``."""
-        attached = getattr(failure, "solver_state", None)
-        return state if attached is None else attached
+        attached = failure.solver_state
+        return attached if isinstance(attached, SolverState) else state
 
     def to_checkpoint(self, state: SolverState):
         """What a checkpoint stores of ``state``: the matrix of the K* carried to the next step,
@@ -206,9 +206,9 @@ def make_solver(kind: str, **options) -> StepSolver:
 
 
 def failed(failure: StepFailure, state: SolverState) -> StepFailure:
-    """``failure`` with the state to retry from attached (:meth:`StepSolver.state_after_failure`)."""
-    failure.solver_state = state
-    return failure
+    """``failure`` carrying the state to retry from (:meth:`StepSolver.state_after_failure`): a
+    new exception, to raise in its place."""
+    return failure.carrying(solver_state=state)
 
 
 class Attempt(abc.ABC):
@@ -255,10 +255,9 @@ class AttemptSolver(StepSolver):
         try:
             x, residual = attempt.run(step, x_old, t, dt, params, start)
         except StepFailure as failure:
-            # the same exception, with the state to retry from attached: re-raise it as it is
-            failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None,
-                                                report=attempt.report))
-            raise
+            # the same failure, carrying the state to retry from (with the failed step's report)
+            raise failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None,
+                                                      report=attempt.report)) from failure.__cause__
         return x, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=residual,
                                       report=attempt.report)
 
