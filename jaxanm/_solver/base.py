@@ -78,7 +78,9 @@ class StepSolver(abc.ABC):
     :func:`make_solver` and the scenes know it by; registered when the class is defined) and
     implement :meth:`step` (and :meth:`init` if the state carries more than a factorisation).
     The :class:`~jaxanm._problem.Problem` in the state gives residuals, tangents, counted
-    factorisations and solves.  ``reuses_factorization`` says whether the K* a state holds is
+    factorisations and solves; what else a step did (Newton iterations, sub-steps, ...) goes in
+    the new state's ``report`` (a :class:`StepReport`), which the time loop adds to the run's
+    statistics (a solver never writes them itself).  ``reuses_factorization`` says whether the K* a state holds is
     carried to the next step (and so stored in checkpoints).
 
     **The arguments of a step** (the same for every solver): ``state`` the solver's state,
