@@ -11,7 +11,6 @@ from model_problems import heat_1d, impulsive_cubic
 import jaxanm
 from jaxanm._problem import Problem
 
-
 ITERATIONS: list = []
 """The chord iterations of each step :class:`FixedPointNewton` solved, as it counted them."""
 
