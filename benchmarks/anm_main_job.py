@@ -59,7 +59,8 @@ def main() -> None:
             order = entries if r % 2 == 0 else entries[::-1]
             for label, base, cmd in order:
                 load = os.getloadavg()[0]
-                row = run(label, args.baseline if base else None, cmd, work / f"{len(runs.get(label, []))}")
+                name = label.replace(", ", "-").replace(" ", "_")
+                row = run(label, args.baseline if base else None, cmd, work / f"{name}-{r}")
                 stats = json.loads((Path(row["dir"]) / "summary.json").read_text())["stats"]
                 row.update({k: stats[k] for k in COUNTS}, load_before=load, load_after=os.getloadavg()[0])
                 runs.setdefault(label, []).append(row)

@@ -334,9 +334,15 @@ class ANM(AttemptSolver):
     adaptive : bool
         Order-adaptive series: ``order`` is the maximum, and the series is accepted at the
         first order j whose validity range (eq. 26 with c_j as last term) reaches a = 1 and
-        whose end point passes the check; the orders used are in ``stats.orders``.  ``False``:
-        fixed order p, as in the paper's Table 1.  In both modes order j's jet is truncated to
-        the j - 1 terms known, so a series costs O(p^2) jet terms.
+        whose end point passes the check; the orders used are in ``stats.orders``.  With
+        ``max_rate > 0``, where the contraction of the last two coefficients (at most
+        ``max_rate``) predicts that order j + 1 would reach a = 1, one modified-Newton
+        correction ``-K*^-1 R(d_end)`` of the order-j end point stands for that order: the
+        corrected point is accepted when the correction is within the accuracy eq. 26
+        promises (modified Newton's test), else the step goes on from ``d_end`` with the
+        correction as its first coefficient (docs/method/defaults.md).  ``False``: fixed order
+        p, as in the paper's Table 1.  In both modes order j's jet is truncated to the j - 1
+        terms known, so a series costs O(p^2) jet terms.
     homotopy : {"convex", "newton"}
         The artificial problem whose series is summed at a = 1 (docs/method/homotopies.md).
         ``"convex"`` is the paper's eq. 22, ``(1 - a) K* (d - d_s) + a R(d) = 0``: order j reads
