@@ -55,7 +55,7 @@ class _ANMStep(Attempt):
     def run(self, step: int, x_old, t, dt, params, start=None):
         """The accepted state and the residual there (None when not evaluated): ``(x, R(x))``;
         the homotopy starts at ``start`` (default ``x_old``)."""
-        P, st = self.problem, self.problem.stats
+        P, st = self.problem, self.report
         args = (x_old, t, dt, params)
         start = _Start(np.array(x_old if start is None else start, dtype=np.float64))
         substeps = 0
@@ -118,7 +118,7 @@ class _ANMStep(Attempt):
         accepted, else where the next series starts (a :class:`_Start`)."""
         approx, a_pade, pade_end = self._try_pade(coeffs, d_s, args)
         if pade_end is not None and pade_end[1] <= CHECK_LIMIT:
-            self.problem.stats.pade_accepted += 1
+            self.report.pade_accepted += 1
             return self._accepted(pade_end[0], a_pade, self.opts.order, pade_end[3])
         if not fresh:  # stale K*: on from the series' end while it contracts, else refactorise
             return self._stale(coeffs, d_s, args, substeps)
@@ -264,7 +264,7 @@ class _ANMStep(Attempt):
 
     def _accepted(self, d_end, amax, order, r_end):
         """Record an accepted series (a_max, its order); return ``(d_end, R(d_end))``."""
-        st = self.problem.stats
+        st = self.report
         st.amax.append(amax)
         st.orders.append(order)
         return d_end, r_end
