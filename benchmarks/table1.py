@@ -45,7 +45,7 @@ def measure(scene_name: str, order: int, t_end: float, criterion: str | None) ->
     result = run(scene)
     wall = time.perf_counter() - start
     st = result.stats
-    return {"order": order, "t_end": t_end, "criterion": scene.solver.criterion,
+    return {"order": order, "t_end": t_end, "criterion": scene.solver.setting("criterion"),
             "factorizations": st.factorizations, "t_max_s": t_end / max(st.factorizations, 1),
             "time_steps": st.time_steps, "substeps": st.substeps, "dt_halvings": st.dt_halvings,
             "series_orders": st.series_orders, "mean_amax": float(np.mean(st.amax)),

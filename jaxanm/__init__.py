@@ -13,15 +13,16 @@ from typing import TYPE_CHECKING
 
 from ._acceptance import evaluate_series, validity_range
 from ._constant_step import ConstantStepSize
-from ._factorization import Factorization, factorize
+from ._factorization import Factorization
 from ._hooks import Remap
 from ._integrate import Solution, integrate
+from ._problem import factorize
 from ._run_checkpoint import stored_host_state
 from ._saveat import SaveAt
 from ._scheme import BDF2, ESDIRK, ImplicitEuler, SemiDiscrete, TimeScheme, make_scheme, scheme_names
 from ._sensitivity_method import SensitivityMethod
 from ._series import taylor_coefficients
-from ._solver import ANM, ModifiedNewton, Newton, SolverState, StepSolver, make_solver, solver_kinds
+from ._solver import ANM, ModifiedNewton, Newton, SolverState, StepReport, StepSolver, make_solver, solver_kinds
 from ._step_control import StepController
 from ._x64 import float64
 from .bordered import ContinuationFailure
@@ -63,6 +64,7 @@ __all__ = [
     "StepController",
     "StepEnd",
     "StepFailure",
+    "StepReport",
     "StepSolver",
     "TimeScheme",
     "color_columns",

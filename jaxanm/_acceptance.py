@@ -55,6 +55,20 @@ def range_of_norms(p: int, n1: float, np_: float, tol: float, state_norm: float 
     return amax
 
 
+def next_order_suffices(j: int, n1: float, n_previous: float, n_j: float, tol: float,
+                        state_norm: float | None, max_rate: float) -> bool:
+    """Whether order ``j + 1`` of a series is predicted to reach a = 1 (:func:`range_of_norms`
+    at order j + 1) from the contraction of its last two coefficients, ``|c_j| / |c_(j-1)|``
+    (scaled norms ``n_j``, ``n_previous``; ``n1`` that of ``c_1``), when that contraction is at
+    most ``max_rate``: the geometric progression of a series whose partial sums are
+    modified-Newton iterates (``docs/method/modified-newton.md``).  False for ``max_rate`` 0
+    or a last coefficient that vanished (no prediction from a ratio of round-off)."""
+    if not (n_previous > 0.0 and n_j > 0.0 and np.isfinite(n_j)):
+        return False
+    rate = n_j / n_previous
+    return rate <= max_rate and range_of_norms(j + 1, n1, rate * n_j, tol, state_norm) >= 1.0
+
+
 def evaluate_series(coeffs: np.ndarray, a: float) -> np.ndarray:
     """``sum_j a^j c_j`` by Horner's rule (``coeffs[j-1] = c_j``)."""
     acc = np.zeros_like(coeffs[0])

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
-from ._factorization import counted_solve
+from ._problem import counted_solve, work
 from .bordered import ExtendedSystem, bordered_matrix, joint_function, release
 
 MAX_ITERATIONS = 12
@@ -58,7 +58,7 @@ def second_derivative(residual):
 
 def hessian_row(system: ExtendedSystem, U, x, w) -> np.ndarray:
     """``w^T R_UU(U)[x, .]`` on the host (timed as a Jacobian evaluation)."""
-    with system.stats.timer("jacobian"):
+    with work(system.stats, "jacobian"):
         return np.asarray(second_derivative(system.residual_function)(U, x, w, system.params))
 
 

@@ -1,10 +1,10 @@
 """Host LU factorisations of tangent matrices: :class:`Factorization` factors and solves.
 
 A solver receives a :class:`Factorization` ("a factorised K*") and applies it as often as it
-likes.  Factorising is what the ANM saves, so the callers count it: :func:`factorize` and
-:func:`counted_solve` time and count in a run's :class:`~jaxanm.stats.Stats` (the
-step solvers' problem goes through them); the object itself keeps no
-statistics.
+likes.  Factorising is what the ANM saves, so the callers count it: :func:`jaxanm._problem.factorize`
+and :func:`jaxanm._problem.counted_solve` time and count in a run's
+:class:`~jaxanm.stats.Stats` (the problem is the one writer of work counters); the object
+itself keeps no statistics.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ import scipy.sparse.linalg
 
 from ._extras import require
 from .errors import SingularMatrixError
-from .stats import Stats
 
 # Why these SuperLU settings (the measurements: benchmarks/results/lu_orderings.md and
 # docs/notes/sparse_lu_at_scale.md).  The FSW tangents have a structurally symmetric pattern
@@ -117,8 +116,8 @@ class NestedDissectionLU:
 class Factorization:
     """LU factors of a square matrix: ``splu`` for sparse input, ``lu_factor`` for dense.
 
-    It factors and solves, nothing else: the caller counts and times (:func:`factorize`,
-    :func:`counted_solve`).  The matrix is kept, so that a checkpoint, or a solve after
+    It factors and solves, nothing else: the caller counts and times (:func:`~jaxanm._problem.factorize`,
+    :func:`~jaxanm._problem.counted_solve`).  The matrix is kept, so that a checkpoint, or a solve after
     :meth:`release`, re-creates these exact factors.  A matrix with non-finite entries, or an
     exactly singular one, raises :class:`~jaxanm.SingularMatrixError`.
     """
@@ -166,7 +165,7 @@ class Factorization:
         Whoever owns this K* calls it before factorising the next one, so that two LUs are
         never alive at once (on fine clouds one takes most of a run's memory); who owns it is
         the rule of :class:`~jaxanm.StepSolver`.  A later :meth:`solve` factorises the same
-        matrix again, to the same factors (:func:`counted_solve` counts that factorisation).
+        matrix again, to the same factors (:func:`~jaxanm._problem.counted_solve` counts that factorisation).
         """
         self._solve = self._lu = None
 
@@ -215,27 +214,3 @@ def slogdet(lu) -> tuple[float, float]:
         diagonal = inner.U.diagonal()
         parity = permutation_parity(inner.perm_r) * permutation_parity(inner.perm_c)
     return float(parity * np.prod(np.sign(diagonal))), float(np.sum(np.log(np.abs(diagonal))))
-
-
-def factorize(matrix, stats: Stats) -> Factorization:
-    """Factorise ``matrix`` on the host, timed as ``factorize`` and counted in
-    ``stats.factorizations``."""
-    with stats.timer("factorize"):
-        made = Factorization(matrix)
-    stats.factorizations += 1
-    return made
-
-
-def counted_solve(fact, rhs, stats: Stats) -> np.ndarray:
-    """``fact.solve(rhs)`` timed as ``solve`` and counted in ``stats.solves`` (1 per column of
-    ``rhs``); a released :class:`Factorization` is factorised again first, timed and counted
-    as a factorisation.  ``fact``: any object with ``solve(rhs)`` (a factorisation hook's)."""
-    rhs = np.asarray(rhs, dtype=np.float64)
-    if getattr(fact, "released", False):
-        with stats.timer("factorize"):
-            fact.refactor()
-        stats.factorizations += 1
-    with stats.timer("solve"):
-        x = fact.solve(rhs)
-    stats.solves += 1 if rhs.ndim == 1 else rhs.shape[1]
-    return x

@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import time
 from typing import Callable
 
 import jax
@@ -61,18 +60,18 @@ from jax.flatten_util import ravel_pytree
 
 from ._checks import flag, integer, real
 from ._factorization import Factorization
-from ._problem import Problem
+from ._problem import Problem, count, record, work
 from ._run_inputs import params_float64
 from ._sensitivity_method import Polished, SensitivityMethod
 from ._theta import bind_paths, check_paths, theta_float64, theta_names
 from .errors import InputError, StepFailure
-from .stats import Stats
+from .stats import Counters, Stats
 
 _FLOOR = 1e3  # a correction that stops shrinking below _FLOOR * polish_tol is at the round-off floor
 
 
 @dataclasses.dataclass
-class SensitivityStats:
+class SensitivityStats(Counters):
     """Cost of the polish and of the sensitivity solves (the step solver's cost is in ``Stats``).
 
     ``polish_iterations`` and ``refine_iterations`` are totals of chord corrections and of
@@ -80,15 +79,19 @@ class SensitivityStats:
     ``extra_factorizations`` counts the Jacobians factorised because refinement or polish
     stalled with the solver's K*; ``rate`` holds, per step, the measured contraction of the
     refinement (an estimate of ``rho(I - K*^-1 J)``); ``residual_norm`` the max-norm of R after
-    polishing; ``wall_time`` splits the time into ``polish``, ``tangent`` (solves), ``observe``
-    and ``solver`` (the rest: the step solver and the time loop).
+    polishing; ``wall_time_s`` the run's wall time, which ``wall_time`` splits into ``polish``,
+    ``tangent`` (solves), ``observe`` and ``solver`` (the rest: the step solver and the time
+    loop).  A :class:`~jaxanm.stats.Counters`, as :class:`jaxanm.Stats`.
     """
+
+    REMAINDER = "solver"
 
     polish_iterations: int = 0
     refine_iterations: int = 0
     extra_factorizations: int = 0
     rate: list = dataclasses.field(default_factory=list)
     residual_norm: list = dataclasses.field(default_factory=list)
+    wall_time_s: float = 0.0
     wall_time: dict = dataclasses.field(
         default_factory=lambda: dict.fromkeys(("solver", "polish", "tangent", "observe"), 0.0))
 
@@ -233,30 +236,28 @@ class ForwardSensitivity(SensitivityMethod):
         ``factorization``: the polished state, ``|R(x)|_inf``, and the Jacobian factorised here
         if polish or refinement stalled with that K* (the loop makes it the solver's K*)."""
         self._fact, self._made = factorization, None
-        tic = time.perf_counter()
-        x, r_norm = self._polish(x, x_old, t, dt, step)
-        toc = time.perf_counter()
-        self.stats.wall_time["polish"] += toc - tic
-        if self.tangents:
-            self.S_T = self._tangent(x, x_old, t, dt, self.S_T, step)
-        self.stats.wall_time["tangent"] += time.perf_counter() - toc
+        with work(self.stats, "polish"):
+            x, r_norm = self._polish(x, x_old, t, dt, step)
+        with work(self.stats, "tangent"):
+            if self.tangents:
+                self.S_T = self._tangent(x, x_old, t, dt, self.S_T, step)
         made, self._fact, self._made = self._made, None, None
         return Polished(x, r_norm, made)
 
     def record(self, t, x, params) -> None:
         """The observation at an accepted step (and its tangent), by this sensitivity's own
         ``params`` and theta (those of the run are ``bound_params``)."""
-        tic = time.perf_counter()
-        t_j = jnp.float64(t)
-        if self.S_T is None:
-            self.values.append(jax.tree_util.tree_map(np.asarray, self.obs(t_j, x, self.params, self.theta_j)))
-        else:
-            v, tan = self.obs_tangent(t_j, x, self.params, self.theta_j, self.S_T, self.basis)
-            self.values.append(jax.tree_util.tree_map(np.asarray, v))
-            self.tangent_values.append(jax.tree_util.tree_map(lambda a: np.moveaxis(np.asarray(a), 0, -1), tan))
-        self.times.append(float(t))
-        self.x = x
-        self.stats.wall_time["observe"] += time.perf_counter() - tic
+        with work(self.stats, "observe"):
+            t_j = jnp.float64(t)
+            if self.S_T is None:
+                self.values.append(jax.tree_util.tree_map(np.asarray, self.obs(t_j, x, self.params, self.theta_j)))
+            else:
+                v, tan = self.obs_tangent(t_j, x, self.params, self.theta_j, self.S_T, self.basis)
+                self.values.append(jax.tree_util.tree_map(np.asarray, v))
+                self.tangent_values.append(jax.tree_util.tree_map(lambda a: np.moveaxis(np.asarray(a), 0, -1),
+                                                                  tan))
+            self.times.append(float(t))
+            self.x = x
 
     def result(self, stats: Stats, wall: float) -> Sensitivities:
         """The :class:`Sensitivities` of the run, whose step solver's statistics are ``stats``
@@ -265,8 +266,7 @@ class ForwardSensitivity(SensitivityMethod):
         if not isinstance(self.values[0], dict):
             raise InputError(f"observe must return a dict of arrays, got {type(self.values[0]).__name__}")
         sst = self.stats
-        sst.wall_time["solver"] = max(wall - sst.wall_time["polish"] - sst.wall_time["tangent"]
-                                      - sst.wall_time["observe"], 0.0)
+        sst.close(wall)
         stack = lambda *leaves: np.stack(leaves)  # noqa: E731
         observed = {"t": np.asarray(self.times), **jax.tree_util.tree_map(stack, *self.values)}
         jac = jax.tree_util.tree_map(stack, *self.tangent_values) if self.tangents else None
@@ -294,7 +294,7 @@ class ForwardSensitivity(SensitivityMethod):
         solver's next K* (counted)."""
         fact = self._run_problem().factorize_at(x, x_old, t, dt, self.bound_params)
         self._fact = self._made = fact
-        self.stats.extra_factorizations += 1
+        count(self.stats, "extra_factorizations")
 
     def _polish(self, x, x_old, t, dt, k):
         """Chord iterations with the solver's K* until R(x) = 0 to round-off: ``(x, |R(x)|_inf)``."""
@@ -315,14 +315,14 @@ class ForwardSensitivity(SensitivityMethod):
                 refreshed, previous = True, np.inf
                 continue
             x = x + dx
-            sst.polish_iterations += 1
+            count(sst, "polish_iterations")
             if size <= tol * ref or stalled:  # converged, or stalled at the round-off floor
                 break
             previous = size
         else:
             raise StepFailure(f"polish did not converge in {self.max_polish} iterations", step=k, t=float(t))
         r_norm = float(np.max(np.abs(P.residual(x, x_old, t, dt, self.bound_params))))
-        sst.residual_norm.append(r_norm)
+        record(sst, "residual_norm", r_norm)
         return x, r_norm
 
     def _tangent(self, x, x_old, t, dt, S_old_T, k):
@@ -334,7 +334,7 @@ class ForwardSensitivity(SensitivityMethod):
         for _ in range(self.max_refine):
             res = b - np.asarray(self.jac_x(*args, S_T))
             dS_T = self.problem.solve(self._kstar(), res.T).T
-            self.stats.refine_iterations += 1
+            count(self.stats, "refine_iterations")
             rel = float(np.max(self._scaled_norms(dS_T) / np.maximum(self._scaled_norms(S_T), np.finfo(float).tiny)))
             if not np.isfinite(rel):
                 raise StepFailure("sensitivity refinement is not finite", step=k, t=float(t))
@@ -342,7 +342,8 @@ class ForwardSensitivity(SensitivityMethod):
             rels.append(rel)
             stalled = len(rels) > 1 and rel > 0.5 * rels[-2]
             if rel <= self.polish_tol or (stalled and rel <= _FLOOR * self.polish_tol):
-                self.stats.rate.append(float((rels[-1] / rels[0]) ** (1 / (len(rels) - 1))) if len(rels) > 1 else 0.0)
+                rate = float((rels[-1] / rels[0]) ** (1 / (len(rels) - 1))) if len(rels) > 1 else 0.0
+                record(self.stats, "rate", rate)
                 return S_T
             if stalled:  # slow with this K*: exact Jacobian once
                 if refreshed:

@@ -65,7 +65,7 @@ def integrate(residual: Callable | SemiDiscrete, x0, params=None, *, t0: float, 
     Returns a :class:`Solution`.  Raises :class:`InputError` on invalid arguments, before any
     computation; :class:`StepFailure` or :class:`NonFiniteError` when a step failed even after
     ``max_dt_halvings`` retries or an accepted state or its residual is not finite (message: step,
-    time, a_max, residual norm), with the run's statistics so far as ``stats`` (as a ``KeyboardInterrupt``).
+    time, a_max, residual norm), with the run's ``stats`` so far (as an interrupt: ``errors.RunInterrupted``).
 
     Parameters
     ----------

@@ -22,8 +22,10 @@ Every step goes the same way, whatever the controller (:mod:`jaxanm._step_size`)
 The loop owns the run's record, a :class:`~jaxanm._loop_state.LoopState` it replaces at every
 change, and is the one place that counts its own work in the run's :class:`~jaxanm.Stats`:
 ``time_steps``, ``residual_norm``, ``step_sizes``, ``dt_halvings``, ``rejected_steps``,
-``resumes`` and ``wall_time_s`` (:class:`_Tally`).  The solver's counters and timers are the
-:class:`~jaxanm._problem.Problem`'s.
+``resumes`` and ``wall_time_s``, and what each solve reports (its
+:class:`~jaxanm._solver.StepReport`: Newton iterations, sub-steps, Padé acceptances, a_max and
+orders), in :class:`_Tally`.  The work counters and timers (factorisations, evaluations,
+solves) are the :class:`~jaxanm._problem.Problem`'s.
 """
 
 from __future__ import annotations
@@ -43,10 +45,10 @@ from ._run_inputs import on_device, remapped_state
 from ._saveat import SaveAt
 from ._scheme import SchemeStep
 from ._sensitivity_method import SensitivityMethod
-from ._solver import StepSolver
+from ._solver import StepReport, StepSolver
 from ._step_size import Segment, Span, StepPlan, StepSizeController, Verdict
 from .checkpoint import SignalGuard, sigterm_as_interrupt
-from .errors import NonFiniteError, StepFailure
+from .errors import NonFiniteError, StepFailure, run_stopped
 from .stats import Stats
 
 
@@ -72,6 +74,18 @@ class _Tally:
 
     def __init__(self, stats: Stats, previous_wall: float, start: float):
         self.stats, self.previous_wall, self.start = stats, previous_wall, start
+
+    def solved(self, report: StepReport | None) -> None:
+        """A solve's :class:`~jaxanm._solver.StepReport` (None: a solver that reports nothing)
+        added to the counters of the same names."""
+        if report is None:
+            return
+        s = self.stats
+        s.newton_iterations += report.newton_iterations
+        s.substeps += report.substeps
+        s.pade_accepted += report.pade_accepted
+        s.amax.extend(report.amax)
+        s.orders.extend(report.orders)
 
     def retried(self) -> None:
         """A failed solve retried (``dt_halvings``)."""
@@ -152,10 +166,10 @@ class TimeLoop:
                 while not self.controller.done(self.state.controller_state, self.state.k, self.state.t, self.span):
                     self._step()
         except BaseException as exc:
-            if isinstance(exc, (StepFailure, KeyboardInterrupt)):
-                exc.stats = stats  # the work done until the failure (factorisations, halvings, ...)
             if not (self.guard is not None and self.guard.held):
                 self._write_checkpoint()  # everything up to the last accepted step (not if recording it failed)
+            if isinstance(exc, (StepFailure, KeyboardInterrupt)):  # with the work done until it stopped
+                raise run_stopped(exc, stats=stats) from exc.__cause__
             raise
         finally:
             self.bar.close()
@@ -244,8 +258,12 @@ class TimeLoop:
         try:  # a start only when the scheme gives one: a user's solver written without it serves Euler
             extra = {} if start is None else {"start": start}
             x_new, state = solver.step(state, k, z, t_new, h_new, self.state.params, **extra)
+            self.tally.solved(state.report)
         except StepFailure as failure:
-            state = solver.state_after_failure(state, failure)
+            after = solver.state_after_failure(state, failure)
+            if after is not state:  # the state the failed step attached, with its report
+                self.tally.solved(after.report)
+            state = after
             raise
         finally:  # a failed step may leave a K* it made for the retry (state_after_failure)
             if solver.factorization(state) is not kstar:

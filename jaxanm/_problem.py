@@ -1,7 +1,10 @@
 """The discrete step problem as the step solvers see it, and its compiled functions.
 
 :class:`Problem` gives residuals, series, tangents and factorisations of one run, each timed
-and counted in the run's :class:`~jaxanm.stats.Stats`; :class:`SeriesPath` gives the
+and counted in the run's :class:`~jaxanm.stats.Stats`.  This module is the one writer of those
+work counters (:func:`work`, :func:`count`, :func:`record`, :func:`factorize`,
+:func:`counted_solve`): every other caller (the path follower's system, IDA, the
+sensitivities) records through them.  :class:`SeriesPath` gives the
 residual's Taylor coefficients along one ANM path, one order at a time.  The compiled
 functions of a residual are shared by every run with that residual: they live in
 :func:`compiled`, a bounded cache of :class:`CompiledResidual` objects, each of which owns
@@ -11,6 +14,7 @@ its affine-split series functions per argument layout.
 from __future__ import annotations
 
 import collections
+import contextlib
 import functools
 import warnings
 
@@ -18,16 +22,58 @@ import jax
 import numpy as np
 import scipy.sparse
 
-from ._factorization import Factorization, counted_solve, factorize
+from ._factorization import Factorization
 from ._series import AffineFunctions, AffinePath, orders_kept, path_coefficients
 from .errors import NonFiniteError, SingularMatrixError, StepFailure
 from .jacobian import SparseJacobian, dense_jacobian_function
-from .stats import Stats
+from .stats import Counters, Stats
 
 MAX_LAYOUTS = 16
 """Argument layouts (shapes and dtypes) whose affine-split functions a residual keeps: a
 rezoned run changes its layout at every rezone and never goes back to an old one, while a
 sweep or a calibration reuses one; the oldest layout is dropped first."""
+
+
+def count(stats: Counters, counter: str, n: int = 1) -> None:
+    """Add ``n`` to the work counter ``stats.<counter>``."""
+    setattr(stats, counter, getattr(stats, counter) + n)
+
+
+def record(stats: Counters, field: str, value) -> None:
+    """Append ``value`` to the per-step list ``stats.<field>`` (e.g. a sensitivity's refinement
+    rate)."""
+    getattr(stats, field).append(value)
+
+
+@contextlib.contextmanager
+def work(stats: Counters, timer: str, counter: str | None = None, n: int = 1):
+    """Time the ``with`` block under ``stats.wall_time[timer]`` and, when it completes, count it
+    (``n`` added to ``stats.<counter>``; nothing counted for a block that raised)."""
+    with stats.timer(timer):
+        yield
+    if counter is not None:
+        count(stats, counter, n)
+
+
+def factorize(matrix, stats: Stats) -> Factorization:
+    """Factorise ``matrix`` on the host, timed as ``factorize`` and counted in
+    ``stats.factorizations``."""
+    with work(stats, "factorize", "factorizations"):
+        made = Factorization(matrix)
+    return made
+
+
+def counted_solve(fact, rhs, stats: Stats) -> np.ndarray:
+    """``fact.solve(rhs)`` timed as ``solve`` and counted in ``stats.solves`` (1 per column of
+    ``rhs``); a released :class:`~jaxanm.Factorization` is factorised again first, timed and
+    counted as a factorisation.  ``fact``: any object with ``solve(rhs)`` (a factorisation hook's)."""
+    rhs = np.asarray(rhs, dtype=np.float64)
+    if getattr(fact, "released", False):
+        with work(stats, "factorize", "factorizations"):
+            fact.refactor()
+    with work(stats, "solve", "solves", 1 if rhs.ndim == 1 else rhs.shape[1]):
+        x = fact.solve(rhs)
+    return x
 
 
 class CompiledResidual:
@@ -82,7 +128,7 @@ class SeriesPath:
         self._problem, self._d_s, self._args = problem, d_s, args
         self._lookahead, self._max_terms = lookahead, max_terms
         self._terms: list[np.ndarray] = []
-        with problem.stats.timer("series"):
+        with work(problem.stats, "series"):
             self._fns = problem.affine_functions(d_s, args)
             if self._fns is not None:
                 self._fns.prepare(d_s, args, orders_kept(max_terms, lookahead), lookahead)
@@ -98,11 +144,10 @@ class SeriesPath:
         P = self._problem
         if self._fns is None:
             return P.residual(self._d_s, *self._args)
-        with P.stats.timer("series"):
+        with work(P.stats, "series", "residual_evaluations"):
             r, f0 = self._fns.start(self._d_s, *self._args)
             self._path = self._affine_path(f0)
             r = np.asarray(r)
-        P.stats.residual_evaluations += 1
         return r
 
     def next(self, c) -> np.ndarray:
@@ -113,11 +158,10 @@ class SeriesPath:
             self._terms.append(np.asarray(c))
             terms = np.stack(self._terms + self._terms[-1:] * self._lookahead)
             return P.series(self._d_s, terms, *self._args)[-1]
-        with P.stats.timer("series"):
+        with work(P.stats, "series", "series_orders"):
             if self._path is None:
                 self._path = self._affine_path()
             r = self._path.next(c)
-        P.stats.series_orders += 1
         return r
 
 
@@ -154,28 +198,25 @@ class Problem:
     def residual(self, x, x_old, t, dt, params) -> np.ndarray:
         """Step residual on the host: by the series' start program when this run has made one
         (one compiled program of the residual per run, not two), else the jitted residual."""
-        with self.stats.timer("series"):
+        with work(self.stats, "series", "residual_evaluations"):
             fns = self._affine if isinstance(self._affine, AffineFunctions) else None
             r = np.asarray(fns.start(x, x_old, t, dt, params)[0] if fns is not None
                            else self._compiled.residual(x, x_old, t, dt, params))
-        self.stats.residual_evaluations += 1
         return r
 
     def series(self, d_s, terms, x_old, t, dt, params) -> np.ndarray:
         """Taylor coefficients ``[R]_1..[R]_K`` of the residual along the series path."""
-        with self.stats.timer("series"):
+        with work(self.stats, "series", "series_orders"):
             fs = np.asarray(self._compiled.series(d_s, terms, x_old, t, dt, params))
-        self.stats.series_orders += 1
         return fs
 
     def tangent(self, x, x_old, t, dt, params):
         """``dR/dx_new`` at ``x``: dense ndarray or scipy CSC, by forward-mode autodiff."""
-        with self.stats.timer("jacobian"):
+        with work(self.stats, "jacobian", "jacobian_evaluations"):
             if self._dense is not None:
                 jac = np.asarray(self._dense(x, x_old, t, dt, params))
             else:
                 jac = self._sparse_jacobian(params)(x, x_old, t, dt, params)
-        self.stats.jacobian_evaluations += 1
         return jac
 
     def _sparse_jacobian(self, params) -> SparseJacobian:
@@ -208,7 +249,7 @@ class Problem:
 
     def solve(self, fact: Factorization, rhs) -> np.ndarray:
         """``K*^-1 rhs`` with ``fact`` (timed and counted, see
-        :func:`~jaxanm._factorization.counted_solve`)."""
+        :func:`counted_solve`)."""
         return counted_solve(fact, rhs, self.stats)
 
     def norm(self, v) -> float:

@@ -32,9 +32,9 @@ import scipy.sparse
 
 from . import _checks as checks
 from ._acceptance import CHECK_LIMIT
-from ._factorization import Factorization, counted_solve
-from ._factorization import factorize as counted_factorize
-from ._problem import Problem, compiled
+from ._factorization import Factorization
+from ._problem import Problem, compiled, counted_solve, work
+from ._problem import factorize as counted_factorize
 from ._run_inputs import jacobian_kind, on_device, params_float64
 from ._series import AffinePath
 from .errors import InputError, SingularMatrixError, StepFailure
@@ -261,19 +261,16 @@ class ExtendedSystem:
 
     def residual(self, U) -> np.ndarray:
         """``R(u, lam)`` on the host (counted)."""
-        with self.stats.timer("series"):
+        with work(self.stats, "series", "residual_evaluations"):
             r = np.asarray(compiled(self.residual_function).residual(U[:-1], np.float64(U[-1]), self.params))
-        self.stats.residual_evaluations += 1
         return r
 
     def tangent_parts(self, U, *, step: int):
         """``(R, R_u, R_lam)`` at ``U`` (R_u dense or sparse, as the system's Jacobian);
         :class:`ContinuationFailure` (code ``"non_finite"``) when R or R_lam is not finite."""
-        st = self.stats
-        with st.timer("jacobian"):
+        with work(self.stats, "jacobian", "residual_evaluations"):
             values = _value_and_dlam(self.residual_function)(U[:-1], np.float64(U[-1]), self.params)
             r, dlam = (np.asarray(v) for v in values)
-        st.residual_evaluations += 1
         r_norm = float(np.max(np.abs(r)))
         if not (np.isfinite(r_norm) and np.all(np.isfinite(dlam))):
             raise ContinuationFailure("the residual or dR/dlam is not finite", step=step, lam=U[-1],
@@ -366,22 +363,20 @@ class PathSeries:
         self._terms: list[np.ndarray] = []
         joint = joint_function(system.residual_function)
         args = (system.params,)
-        with system.stats.timer("series"):
+        with work(system.stats, "series"):
             fns = compiled(joint).affine_functions(point, args)
             self._path = None if fns is None else AffinePath(fns, point, args, lookahead=True, max_terms=max_terms)
         self._whole = compiled(joint).series  # used without a split; compiled on first use only
 
     def next(self, U_k, linearisation: Linearisation) -> np.ndarray:
         """``F_(k+1)`` from the new coefficient ``U_k`` (counted in ``stats.series_orders``)."""
-        st = self._system.stats
-        with st.timer("series"):
+        with work(self._system.stats, "series", "series_orders"):
             if self._path is not None:
                 f = self._path.next(U_k) - linearisation.times(U_k)
             else:
                 self._terms.append(np.asarray(U_k))
                 terms = np.stack(self._terms + [np.zeros_like(U_k)])
                 f = np.asarray(self._whole(self._point, terms, self._system.params))[-1]
-        st.series_orders += 1
         return f
 
 

@@ -37,7 +37,7 @@ import jax
 import numpy as np
 
 from ._plain import PlainDataError, from_plain, stored_type, stored_types, to_plain
-from .errors import InputError
+from .errors import InputError, RunInterrupted
 
 __all__ = ["FORMAT_VERSION", "Interrupted", "SignalGuard", "atomic_path", "read", "sigterm_as_interrupt",
            "stored_type", "stored_types", "to_host", "write_atomic"]
@@ -148,7 +148,7 @@ def _header(path, magic: bytes) -> dict:
     return header
 
 
-class Interrupted(KeyboardInterrupt):
+class Interrupted(RunInterrupted):
     """Raised inside a run when SIGTERM arrives, so that the run can checkpoint and stop."""
 
 

@@ -53,8 +53,8 @@ from pathlib import Path
 
 from jaxanm import compile_cache
 from jaxanm._progress import ProgressBar
-from jaxanm.errors import InputError, SingularMatrixError, StepFailure, did_you_mean
-from jaxanm.fsw.scene import REGISTERED_KIND, SOLVER_NAMES, SOLVER_OPTIONS, override_keys
+from jaxanm.errors import InputError, RunStopped, SingularMatrixError, StepFailure, did_you_mean
+from jaxanm.fsw.scene import SOLVER_KINDS, SOLVER_OPTIONS, override_keys
 
 PROG = "jaxanm"
 DEFAULT_SCENE = "fsw"
@@ -92,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"shipped scene name or path to a scene TOML file (default {DEFAULT_SCENE}; "
                      "with --resume: the scene stored in the checkpoint)")
     run.add_argument("--t-end", type=float, metavar="S", help="end time in s (time.t_end)")
-    run.add_argument("--solver", choices=tuple(SOLVER_NAMES),
+    run.add_argument("--solver", choices=SOLVER_KINDS,
                      help="nonlinear step solver (solver.kind; mnewton = modified Newton)")
     run.add_argument("--order", type=int, metavar="P", help="ANM truncation order (solver.order)")
     run.add_argument("--tol", type=float, metavar="X",
@@ -188,7 +188,7 @@ def load_run_scene(args: argparse.Namespace, base=None):
             raise UsageError(f"--set {key}: no such scene key{f' ({hint})' if hint else ''}; every key with its "
                              "default: jaxanm scenes SCENE, or docs/guide/scene-keys.md")
     shorthands = {"time.t_end": args.t_end, "solver.order": args.order, "solver.tol": args.tol,
-                  "solver.kind": SOLVER_NAMES.get(args.solver)}
+                  "solver.kind": args.solver}
     if args.scene is not None or base is None:
         scene = _load_scene(args.scene or DEFAULT_SCENE)
     else:
@@ -207,7 +207,7 @@ def _check_solver_options(scene, overrides: dict, order_given: bool) -> None:
     scene's solver does not take (a scene file keeps every solver's fields, a command line names
     what it means to change)."""
     kind = scene.solver.kind
-    takes = SOLVER_OPTIONS[REGISTERED_KIND[kind]]
+    takes = SOLVER_OPTIONS[kind]
     if order_given and "order" not in takes:
         raise UsageError(f"--order sets the ANM's series order (solver.order); the {kind} solver has none "
                          f"(it takes {', '.join(takes)}): drop --order, or add --solver anm")
@@ -341,14 +341,14 @@ def what_to_try(scene, exc: StepFailure | SingularMatrixError) -> str:
     the options that apply to its solver, effects and start, the cheapest first."""
     kind, tries = scene.solver.kind, []
     if kind == "anm":
-        more = max(200, 4 * scene.solver.max_substeps)
+        more = max(200, 4 * scene.solver.setting("max_substeps"))
         tries.append(f"more continuation sub-steps (--set solver.max_substeps={more})")
     else:
-        tries.append(f"more iterations (--set solver.max_iter={2 * scene.solver.make().max_iter})")
+        tries.append(f"more iterations (--set solver.max_iter={2 * scene.solver.setting('max_iter')})")
     if {"inertia", "conduction", "lagrangian", "tracers"} & set(scene.effects):  # else dt changes no step
         tries.append(f"a smaller time step than the run's own halvings reached (--set time.dt={scene.time.dt / 100:g})")
-    tries.append("another solver (" + ", ".join(f"--solver {name}" for name, k in SOLVER_NAMES.items()
-                                                if k != kind) + ")")
+    tries.append("another solver (" + ", ".join(f"--solver {name}" for name in SOLVER_KINDS if name != kind)
+                 + ")")
     if "viscous" in scene.effects and scene.mechanics.start == "rest" and getattr(exc, "step", 1) <= 1:
         tries.append("starting from the quasi-static flow instead of rest (--set mechanics.start=quasi_static)")
     return f"; to get past it try {'; '.join(tries)}; more in {TROUBLESHOOTING}"
@@ -381,7 +381,7 @@ def coarse_cloud_lines(spatial: dict | None) -> list[str]:
 def _stopped(what: str, exc: BaseException, out_dir, scene, checkpointing) -> str:
     """One-line report of a run that stopped early; writes the partial results it carries."""
     parts = [what]
-    partial = getattr(exc, "partial", None)
+    partial = exc.partial if isinstance(exc, RunStopped) else None
     if partial is not None:
         logger = logging.getLogger("jaxanm")
         level = logger.level

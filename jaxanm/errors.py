@@ -35,7 +35,47 @@ def format_number(value) -> str:
     return f"{value:.3g}" if math.isfinite(value) else str(value)
 
 
-class StepFailure(RuntimeError):
+class RunStopped(BaseException):
+    """What an exception that ends a run early carries, as declared fields: ``stats`` (the run's
+    statistics up to the stop, the work of the step it stopped in included: a
+    :class:`jaxanm.Stats`) and ``partial`` (what the caller made of the steps done so far, e.g.
+    the FSW run's ``FSWResult``), None until given.  The base of :class:`StepFailure` and
+    :class:`RunInterrupted` (never raised itself).  A caller that adds them raises
+    :meth:`carrying`'s new exception in place of the one it caught: no exception is changed
+    after it was raised.
+    """
+
+    stats: object = None
+    partial: object = None
+
+    def carrying(self, **fields):
+        """A new exception of the same class, message, fields and traceback, with ``fields``
+        (names the class declares, e.g. ``stats``, ``partial``) given; raise it ``from`` the
+        caught one's cause."""
+        undeclared = sorted(name for name in fields if not hasattr(type(self), name))
+        if undeclared:
+            raise TypeError(f"{type(self).__name__} declares no field {undeclared[0]!r}")
+        made = type(self).__new__(type(self))
+        made.args = self.args
+        made.__dict__.update({**self.__dict__, **fields})
+        return made.with_traceback(self.__traceback__)
+
+
+class RunInterrupted(RunStopped, KeyboardInterrupt):
+    """A run interrupted (SIGINT, or SIGTERM as :class:`jaxanm.checkpoint.Interrupted`), carrying
+    its ``stats`` and ``partial`` result (:class:`RunStopped`); a ``KeyboardInterrupt``."""
+
+
+def run_stopped(exc: BaseException, **fields) -> RunStopped:
+    """The exception a run stopped by ``exc`` (a step failure or an interrupt) raises in its
+    place: the same one carrying ``fields`` (:meth:`RunStopped.carrying`); a plain
+    ``KeyboardInterrupt`` becomes a :class:`RunInterrupted` (still a ``KeyboardInterrupt``)."""
+    if not isinstance(exc, RunStopped):
+        exc = RunInterrupted(*exc.args).with_traceback(exc.__traceback__)
+    return exc.carrying(**fields)
+
+
+class StepFailure(RunStopped, RuntimeError):
     """A time step could not be completed by the nonlinear solver.
 
     Attributes ``step``, ``t``, ``amax`` and ``residual_norm`` locate and quantify the failure.
@@ -47,13 +87,14 @@ class StepFailure(RuntimeError):
     when no residual was evaluated at the failing state; a non-finite norm is printed as
     ``nan`` or ``inf``.  What to change when a step fails (more ANM sub-steps, a smaller step,
     another solver, a better start): docs/guide/troubleshooting.md; the ``jaxanm`` command ends
-    its error line with the options that apply to the failed scene.
+    its error line with the options that apply to the failed scene.  Raised out of a run, it
+    carries the run's ``stats`` (and a model's ``partial`` result): :class:`RunStopped`.
     """
 
-    # set by a step solver on a failure inside its step: the state to retry from (absent
-    # otherwise, hence read with getattr).  Its type, jaxanm._solver.base.SolverState, is the
-    # step solvers' own: errors.py imports no module of the package, so every module may import it
-    solver_state: object
+    # given by a step solver on a failure inside its step (:meth:`RunStopped.carrying`): the
+    # state to retry from, else None.  Its type, jaxanm._solver.base.SolverState, is the step
+    # solvers' own: errors.py imports no module of the package, so every module may import it
+    solver_state: object = None
 
     def __init__(self, reason: str, *, step: int, t: float, amax=None, residual_norm=None):
         self.reason = reason

@@ -66,11 +66,13 @@ import scipy.sparse
 
 from ._checks import integer, positive, real
 from ._extras import require
+from ._problem import count, work
 from ._run_inputs import params_float64
 from ._scheme import SemiDiscrete, stage_residual
 from ._x64 import entry_point
 from .errors import InputError
 from .jacobian import SparseJacobian, detect_sparsity
+from .stats import Stats
 
 __all__ = ["IDAFailure", "IDASolution", "IDAStats", "dae_residual", "integrate_ida"]
 
@@ -82,39 +84,46 @@ class IDAFailure(RuntimeError):
     def __init__(self, reason: str, *, status: int, t: float, stats: "IDAStats"):
         self.reason, self.status, self.t, self.stats = reason, int(status), float(t), stats
         super().__init__(f"IDA failed at t = {self.t:.6g} (flag {self.status}): {reason}; "
-                         f"{stats.steps} steps, {stats.jacobian_evaluations} Jacobians so far")
+                         f"{stats.time_steps} steps, {stats.jacobian_evaluations} Jacobians so far")
+
+
+IDA_TIMERS = ("start", "residual", "jacobian", "ida")
+
+_RENAMED = {"steps": "time_steps", "wall_s": "wall_time_s", "linear_solves": "newton_iterations"}
+"""IDAStats' former field names -> the shared names (:class:`jaxanm.Stats`'s)."""
 
 
 @dataclasses.dataclass
-class IDAStats:
-    """Counters and wall times of one :func:`integrate_ida` run.
+class IDAStats(Stats):
+    """Counters and wall times of one :func:`integrate_ida` run: a :class:`jaxanm.Stats` (the
+    same names for the same things), of which IDA fills these.
 
-    ``steps``: IDA's internal (accepted) steps; ``residual_evaluations`` and
+    ``time_steps``: IDA's internal (accepted) steps; ``residual_evaluations`` and
     ``jacobian_evaluations``: calls made by IDA (Jacobians are also its matrix setups: one
-    SuperLU_MT factorisation each); ``linear_solves``: IDA's Newton iterations (one residual
-    evaluation each, module docstring); ``ic_steps``: implicit-Euler steps of the consistent
-    start (their Newton work is in ``ic_stats``, a :class:`jaxanm.Stats`).  ``wall_s``: the
-    whole call; ``wall_time`` splits it into ``start`` (consistent start, sparsity, checks),
-    ``residual`` and ``jacobian`` (the JAX calls IDA made) and ``ida`` (the rest: IDA's own
-    linear algebra and bookkeeping).
+    SuperLU_MT factorisation each, counted in ``factorizations`` too); ``newton_iterations``:
+    IDA's Newton iterations (one residual evaluation and one linear solve each, module
+    docstring); ``ic_steps``: implicit-Euler steps of the consistent start (their Newton work is
+    in ``ic_stats``, a :class:`jaxanm.Stats`).  ``wall_time_s``: the whole call; ``wall_time``
+    splits it into ``start`` (consistent start, sparsity, checks), ``residual`` and
+    ``jacobian`` (the JAX calls IDA made) and ``ida`` (the rest: IDA's own linear algebra and
+    bookkeeping).  The former names ``steps``, ``wall_s`` and ``linear_solves`` still read
+    (deprecated).
     """
 
-    steps: int = 0
-    residual_evaluations: int = 0
-    jacobian_evaluations: int = 0
-    linear_solves: int = 0
+    REMAINDER = "ida"
     ic_steps: int = 0
     ic_stats: object = None
-    wall_s: float = 0.0
-    wall_time: dict = dataclasses.field(
-        default_factory=lambda: dict.fromkeys(("start", "residual", "jacobian", "ida"), 0.0))
+    wall_time: dict = dataclasses.field(default_factory=lambda: dict.fromkeys(IDA_TIMERS, 0.0))
 
-    def summary(self) -> dict:
-        """The counters and wall times as a plain dictionary (JSON-serialisable)."""
-        d = {k: getattr(self, k) for k in ("steps", "residual_evaluations", "jacobian_evaluations", "linear_solves",
-                                           "ic_steps", "wall_s")}
-        d["wall_time"] = {k: round(v, 4) for k, v in self.wall_time.items()}
-        return d
+    def __getattr__(self, name: str):
+        """The deprecated former field names (``steps``, ``wall_s``, ``linear_solves``), with a
+        :class:`DeprecationWarning` naming the new one."""
+        new = _RENAMED.get(name)
+        if new is None:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        warnings.warn(f"IDAStats.{name} is deprecated: use IDAStats.{new} (the name jaxanm.Stats gives it)",
+                      DeprecationWarning, stacklevel=2)
+        return getattr(self, new)
 
 
 @dataclasses.dataclass
@@ -275,17 +284,14 @@ def _ida(ida_module, F, jac, h0, params, pattern, stats: IDAStats, **options):
     ``options`` go to IDA."""
 
     def resfn(t, y, yp, res):
-        t1 = time.perf_counter()
-        res[:] = np.asarray(F(t, y, yp, h0, params))
-        stats.residual_evaluations += 1
-        stats.wall_time["residual"] += time.perf_counter() - t1
+        with work(stats, "residual", "residual_evaluations"):
+            res[:] = np.asarray(F(t, y, yp, h0, params))
 
     def jacfn(t, y, yp, res, cj, JJ):
-        t1 = time.perf_counter()
-        J = jac(y, (y, yp, cj), t, h0, params)
-        JJ[:] = J.data
-        stats.jacobian_evaluations += 1
-        stats.wall_time["jacobian"] += time.perf_counter() - t1
+        with work(stats, "jacobian", "jacobian_evaluations"):
+            J = jac(y, (y, yp, cj), t, h0, params)
+            JJ[:] = J.data
+        count(stats, "factorizations")  # IDA's matrix setup: one SuperLU_MT factorisation
 
     with warnings.catch_warnings():  # the wheel warns that its own sparse DQ Jacobian is unused: jacfn replaces it
         warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
@@ -303,18 +309,18 @@ def _march(solver, t_start: float, t_out, max_steps: int, stats: IDAStats, wall0
             raise InputError(f"output time {t_next!r} is before IDA's start {t_start!r} (t0 + 2 ic_dt): "
                              "give a smaller ic_dt")
         while t < t_next:
-            if stats.steps >= max_steps:
-                stats.wall_s = time.perf_counter() - wall0
+            if stats.time_steps >= max_steps:
+                stats.close(time.perf_counter() - wall0)
                 raise IDAFailure(f"more than max_steps = {max_steps} steps; raise max_steps or loosen rtol/atol",
                                  status=-1, t=t, stats=stats)
             r = solver.step(float(t_next), method="onestep", tstop=float(t_next))
             if not r.success:
-                stats.wall_s = time.perf_counter() - wall0
+                stats.close(time.perf_counter() - wall0)
                 raise IDAFailure(str(r.message), status=r.status, t=float(r.t), stats=stats)
-            stats.steps += 1
+            count(stats, "time_steps")
             t = float(r.t)
             if not np.all(np.isfinite(r.y)):
-                stats.wall_s = time.perf_counter() - wall0
+                stats.close(time.perf_counter() - wall0)
                 raise IDAFailure("the state went non-finite", status=-99, t=t, stats=stats)
         ts.append(t)
         xs.append(np.array(r.y))
@@ -386,19 +392,17 @@ def integrate_ida(residual: Callable | SemiDiscrete, x0, params=None, *, t0: flo
     g = _newton_matrix_residual(residual)
     pattern = _newton_pattern(g, x0, sparsity, t0, h0, params)
     jac = SparseJacobian(g, pattern)
-    stats = IDAStats()
-    t_start, y0 = float(t0), x0  # IDA starts from the given yp0 at t0, else after the consistent start
+    t_start, y0, ic_stats = float(t0), x0, None  # from the given yp0 at t0, else after the consistent start
     if yp0 is None:
-        t_start, y0, yp0, stats.ic_stats = _consistent_start(residual, x0, params, t0, ic_dt, ic_tol, scale, pattern)
-        stats.ic_steps = 2
-    stats.wall_time["start"] = time.perf_counter() - wall0
+        t_start, y0, yp0, ic_stats = _consistent_start(residual, x0, params, t0, ic_dt, ic_tol, scale, pattern)
+    stats = IDAStats(ic_steps=0 if ic_stats is None else 2, ic_stats=ic_stats,
+                     wall_time=dict(dict.fromkeys(IDA_TIMERS, 0.0), start=time.perf_counter() - wall0))
     solver = _ida(ida_module, F, jac, h0, params, pattern, stats, nthreads=nthreads, rtol=float(rtol),
                   atol=atol_a * scale, max_order=int(max_order), first_step=float(first_step), max_step=float(max_step))
     r = solver.init_step(t_start, y0, yp0)
     if not r.success:
         raise IDAFailure(str(r.message), status=r.status, t=t_start, stats=stats)
     ts, xs, xps = _march(solver, t_start, t_out, max_steps, stats, wall0)
-    stats.linear_solves = stats.residual_evaluations
-    stats.wall_s = time.perf_counter() - wall0
-    stats.wall_time["ida"] = max(stats.wall_s - sum(v for k, v in stats.wall_time.items() if k != "ida"), 0.0)
+    count(stats, "newton_iterations", stats.residual_evaluations)  # one residual per Newton iteration
+    stats.close(time.perf_counter() - wall0)
     return IDASolution(np.array(ts), np.array(xs), np.array(xps), t_start, stats)

@@ -14,8 +14,8 @@ core module imports this one (the facade points one way: from the subpackages in
 
 from ._checks import choice, flag, integer, positive, real
 from ._extras import MissingExtraError, missing_extra_message, require
-from ._factorization import Factorization, factorize, sparse_lu
-from ._problem import Problem, relative_change
+from ._factorization import Factorization, sparse_lu
+from ._problem import Problem, count, factorize, relative_change
 from ._solver import make_solver, solver_kinds
 from ._x64 import entry_point
 
@@ -24,6 +24,7 @@ __all__ = [
     "MissingExtraError",
     "Problem",
     "choice",
+    "count",
     "entry_point",
     "factorize",
     "flag",

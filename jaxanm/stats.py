@@ -1,4 +1,13 @@
-"""Run statistics: counters, the a_max history and the wall-time split."""
+"""Run statistics: counters, the a_max history and the wall-time split.
+
+Every statistics class of the package (:class:`Stats`, :class:`jaxanm.ida.IDAStats`,
+:class:`jaxanm.sensitivity.SensitivityStats`) is a :class:`Counters`: the same names for the
+same things (``wall_time_s`` the total, ``wall_time`` its split, whose ``REMAINDER`` key takes
+what the named timers did not account for).  Who writes them is fixed: work counters (factorisations,
+residual and Jacobian evaluations, solves, their times) only through :mod:`jaxanm._problem`,
+step counters by the time loop, a branch's by the walk of the path follower
+(``tests/test_code_layout.py`` holds the rule).
+"""
 
 from __future__ import annotations
 
@@ -11,9 +20,35 @@ from ._plain import stored_type
 TIMER_KEYS = ("jacobian", "factorize", "series", "solve", "other")
 
 
+class Counters:
+    """The shared base of the statistics classes: the total wall time ``wall_time_s`` and its
+    split ``wall_time`` (a dict of timer names to seconds, ``REMAINDER`` the key that
+    :meth:`close` gives the time the others did not account for)."""
+
+    REMAINDER: str = "other"
+    wall_time_s: float
+    wall_time: dict
+
+    @contextlib.contextmanager
+    def timer(self, key: str):
+        """Accumulate the wall time of the ``with`` block under ``wall_time[key]``."""
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.wall_time[key] += time.perf_counter() - start
+
+    def close(self, total_s: float) -> None:
+        """Set the total wall time; ``wall_time[REMAINDER]`` gets what the named timers did not
+        account for."""
+        self.wall_time_s = total_s
+        named = sum(v for k, v in self.wall_time.items() if k != self.REMAINDER)
+        self.wall_time[self.REMAINDER] = max(total_s - named, 0.0)
+
+
 @stored_type("Stats")
 @dataclasses.dataclass
-class Stats:
+class Stats(Counters):
     """Statistics of one :func:`jaxanm.integrate` run.
 
     Counters are totals over the run.  ``series_orders`` counts evaluations of the jet
@@ -50,21 +85,6 @@ class Stats:
     step_sizes: list = dataclasses.field(default_factory=list)
     wall_time_s: float = 0.0
     wall_time: dict = dataclasses.field(default_factory=lambda: dict.fromkeys(TIMER_KEYS, 0.0))
-
-    @contextlib.contextmanager
-    def timer(self, key: str):
-        """Accumulate the wall time of the ``with`` block under ``wall_time[key]``."""
-        start = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.wall_time[key] += time.perf_counter() - start
-
-    def close(self, total_s: float) -> None:
-        """Set the total wall time; ``other`` gets what the named timers did not account for."""
-        self.wall_time_s = total_s
-        named = sum(v for k, v in self.wall_time.items() if k != "other")
-        self.wall_time["other"] = max(total_s - named, 0.0)
 
     def as_dict(self) -> dict:
         """Plain-Python dictionary (JSON-serialisable) of every field."""

@@ -109,7 +109,7 @@ def _steady_power_error(K: int) -> float:
     """(P_h - P) / P of fsw_tracers' isothermal steady flow (effect ``viscous`` only, one
     implicit step of 1 s: no inertia, stationary) at dr = GAP / K, P from the oracle."""
     scene = load_scene("fsw_tracers").with_overrides({
-        "effects": "viscous", "time.dt": "1.0", "time.t_end": "1.0", "time.save": "", "solver.kind": "modified_newton",
+        "effects": "viscous", "time.dt": "1.0", "time.t_end": "1.0", "time.save": "", "solver.kind": "mnewton",
         "geometry.dr": repr(GAP / K)})
     P = ax.solve(scene, [0.0]).power[0]
     with jaxanm.float64():
@@ -150,7 +150,7 @@ def _rise_error(K: int, n: float, t_end: float) -> float:
     """Relative L2 error, over the points, of T - T0 of fsw_tracers (material n) at t_end
     against the oracle, at dr = GAP / K (modified Newton, the scene's dt = 1e-4)."""
     scene = load_scene("fsw_tracers").with_overrides({
-        "material.n": repr(n), "time.t_end": repr(t_end), "time.save": "", "solver.kind": "modified_newton",
+        "material.n": repr(n), "time.t_end": repr(t_end), "time.save": "", "solver.kind": "mnewton",
         "geometry.dr": repr(GAP / K)})
     ref = ax.solve(scene, [t_end])
     with jaxanm.float64():

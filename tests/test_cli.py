@@ -113,8 +113,8 @@ def test_shorthands_and_set_overrides_reach_the_scene(tiny, tmp_path, fake_run, 
     scene = fake_run["scene"]
     assert scene.name == "tiny" and scene.time.t_end == 0.002 and scene.time.dt == 5e-5
     assert scene.material.K == 2e16
-    assert (scene.solver.kind, scene.solver.order, scene.solver.tol) == ("modified_newton", 9, 1e-8)
-    assert no_files["scene"].solver.kind == "modified_newton"  # the files describe the overridden scene
+    assert (scene.solver.kind, scene.solver.order, scene.solver.tol) == ("mnewton", 9, 1e-8)
+    assert no_files["scene"].solver.kind == "mnewton"  # the files describe the overridden scene
 
 
 def test_set_switches_the_pade_option(tiny, tmp_path, fake_run, no_files):
@@ -202,9 +202,9 @@ def test_set_solver_option_the_solver_does_not_take_is_named(tiny, tmp_path, fak
     argv = ["run", str(tiny), "--solver", "mnewton", "--set", "solver.pade=true", "--out", str(tmp_path),
             "--no-progress"]
     assert cli.main(argv) == 0
-    assert "--set solver.pade: not used by the modified_newton solver (it takes tol, max_iter, max_rate)" \
+    assert "--set solver.pade: not used by the mnewton solver (it takes tol, max_iter, max_rate)" \
         in capsys.readouterr().err
-    assert fake_run["scene"].solver.kind == "modified_newton"
+    assert fake_run["scene"].solver.kind == "mnewton"
 
 
 def test_a_folder_named_like_a_shipped_scene_does_not_hide_it(tmp_path, monkeypatch, fake_run, no_files, capsys):

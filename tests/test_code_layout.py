@@ -412,3 +412,79 @@ def test_scalar_inputs_are_checked_by_the_checks_module():
              if counts.get(file, 0) < n]
     assert not more, "scalar types checked inline (use jaxanm._checks):\n" + "\n".join(more)
     assert not fewer, "INLINE_CHECKS_TO_MOVE counts to lower:\n" + "\n".join(fewer)
+
+
+STATS_OWNERS = {
+    "jaxanm.stats": "the statistics classes themselves (closing the wall time)",
+    "jaxanm._problem": "work counters: factorisations, residual and Jacobian evaluations, series orders, solves, "
+                       "their times (count, work, record, factorize, counted_solve)",
+    "jaxanm._loop": "a run's step counters and the solvers' step reports (_Tally)",
+    "jaxanm._walk": "a branch's counters, built from the walk of the path follower",
+}
+"""The modules that write statistics fields; everyone else records through them."""
+
+
+def _stats_names(tree: ast.AST) -> set:
+    """Local names bound to a statistics object: ``st = self.problem.stats``, ``s = Stats()``."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign):
+            value = ast.unparse(node.value)
+            if value.endswith("stats") or value.endswith("Stats()"):
+                names.update(t.id for t in node.targets if isinstance(t, ast.Name))
+    return names
+
+
+def _stats_writes_in(source: str) -> list:
+    """``line: statement`` of every write to a statistics object in ``source``: an assignment
+    or augmented assignment to an attribute (or to an entry of ``wall_time``) of something
+    named ``...stats`` or bound to one, every ``<stats>.<list>.append/extend(...)`` and every
+    ``<stats>.timer(...)``."""
+    tree = ast.parse(source)
+    aliases = _stats_names(tree)
+
+    def stats_object(expr: ast.expr) -> bool:
+        text = ast.unparse(expr)
+        return text.endswith("stats") or text in aliases
+
+    writes = []
+    for node in ast.walk(tree):
+        targets = node.targets if isinstance(node, ast.Assign) else \
+            [node.target] if isinstance(node, (ast.AugAssign, ast.AnnAssign)) else []
+        for target in targets:
+            if isinstance(target, ast.Subscript) and isinstance(target.value, ast.Attribute) \
+                    and target.value.attr == "wall_time":
+                target = target.value
+            if isinstance(target, ast.Attribute) and stats_object(target.value):
+                writes.append(f"{node.lineno}: {ast.unparse(node)}")
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and (
+                (node.func.attr == "timer" and stats_object(node.func.value))
+                or (node.func.attr in ("append", "extend") and isinstance(node.func.value, ast.Attribute)
+                    and stats_object(node.func.value.value))):
+            writes.append(f"{node.lineno}: {ast.unparse(node)}")
+    return writes
+
+
+def test_the_stats_write_finder_finds_them():
+    """The check below can fail: direct writes, writes through an alias, ``wall_time`` entries
+    and timers are found; reading a counter and recording through the owner are not."""
+    source = ("def f(problem, report):\n"
+              "    problem.stats.factorizations += 1\n"
+              "    st = problem.stats\n    st.solves = 2\n"
+              "    report.stats.wall_time['x'] += 1.0\n"
+              "    with problem.stats.timer('series'):\n        pass\n"
+              "    st.amax.append(0.5)\n"
+              "    n = problem.stats.solves\n    count(problem.stats, 'solves')\n"
+              "    report.substeps += 1\n    report.amax.append(0.5)\n")
+    assert sorted(int(w.split(":")[0]) for w in _stats_writes_in(source)) == [2, 4, 5, 6, 8]
+
+
+def test_statistics_are_written_by_their_owners_only():
+    """One owner per counter (:data:`STATS_OWNERS`): ``Problem``'s module counts and times the
+    work (factorisations, evaluations, solves), the time loop the steps and what each solve
+    reports, the path follower's walk a branch's counters.  Any other module records through
+    them (``jaxanm._problem.count`` / ``work`` / ``record``, a solver's ``StepReport``), never by writing a
+    field of ``Stats``, ``IDAStats`` or ``SensitivityStats`` itself."""
+    offenders = [f"{MODULES[name].relative_to(PACKAGE.parent)}:{write}" for name in sorted(MODULES)
+                 if name not in STATS_OWNERS for write in _stats_writes_in(MODULES[name].read_text())]
+    assert not offenders, "statistics written outside their owners:\n" + "\n".join(offenders)

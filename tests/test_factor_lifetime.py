@@ -16,7 +16,7 @@ import scipy.sparse
 from model_problems import heat_1d, impulsive_cubic
 
 import jaxanm
-from jaxanm import _factorization as linalg
+from jaxanm import _problem as linalg
 from jaxanm._problem import Problem
 from jaxanm.stats import Stats
 

@@ -24,7 +24,7 @@ def _couette_errors(overrides: dict) -> tuple[float, float, float]:
     over the plate, the r - R1 (m) where it sits, and the power error (P_h - P) / P."""
     scene = load_scene("fsw_graded").with_overrides({
         "effects": "viscous", "time.dt": "1.0", "time.t_end": "1.0", "time.save": "",
-        "solver.kind": "modified_newton", "mechanics.start": "quasi_static", **overrides})
+        "solver.kind": "mnewton", "mechanics.start": "quasi_static", **overrides})
     with jaxanm.float64():
         res = run(scene)
     g, omega = scene.geometry, scene.tool.omega

@@ -21,10 +21,12 @@ from jaxanm.fsw.geometry import PLATE, PLATE_EDGE, RING, TOOL, TOOL_EDGE, build_
 from jaxanm.fsw.physics import mu_reference
 from jaxanm.fsw.scene import (
     EFFECTS,
+    SOLVER_KINDS,
     Geometry,
     Material,
     Scene,
     SceneError,
+    SolverSpec,
     Time,
     load_scene,
     override_keys,
@@ -81,19 +83,56 @@ def test_overrides_parse_strings_and_validate():
 def test_solver_switches_reach_the_anm_options():
     """``solver.adaptive`` and ``solver.pade`` (TOML booleans, or true/false strings from --set)."""
     s = load_scene("fsw_small")
-    assert s.solver.make() == jaxanm.ANM.paper(order=s.solver.order, tol=s.solver.tol, criterion=s.solver.criterion,
-                                               max_substeps=s.solver.max_substeps, max_rate=s.solver.max_rate)
+    setting = s.solver.setting
+    assert s.solver.make() == jaxanm.ANM.paper(order=setting("order"), tol=setting("tol"),
+                                               criterion=setting("criterion"), max_substeps=setting("max_substeps"),
+                                               max_rate=setting("max_rate"))
     t = s.with_overrides({"solver.pade": "true", "solver.adaptive": "True"})
     assert t.solver.pade is True and t.solver.adaptive is True
     assert t.solver.make().pade is True and t.solver.make().adaptive is True
     assert s.with_overrides({"solver.pade": False}).solver.make().pade is False
 
 
+def test_an_unset_solver_setting_is_the_solvers_own_default():
+    """The scene keeps no solver defaults: what it leaves out is the solver's (its dataclass
+    field's default), for every kind; it is not written back in the TOML layout, and the
+    solvers declare the option names the scene's section offers."""
+    bare = Scene.from_dict({"solver": {"kind": "anm"}})
+    assert bare.solver.make() == jaxanm.ANM() and "order" not in bare.to_dict()["solver"]
+    for kind, solver in (("newton", jaxanm.Newton()), ("mnewton", jaxanm.ModifiedNewton())):
+        assert bare.with_overrides({"solver.kind": kind}).solver.make() == solver
+    given = bare.with_overrides({"solver.order": "9", "solver.kind": "newton"})  # kept, passed to the ANM only
+    assert given.solver.make() == jaxanm.Newton() and given.with_overrides({"solver.kind": "anm"}).solver.order == 9
+    offered = {f.name for f in dataclasses.fields(SolverSpec)} - {"kind"}
+    taken = {f.name for kind in jaxanm.solver_kinds() for f in dataclasses.fields(jaxanm.make_solver(kind))}
+    assert offered == taken
+
+
+def test_one_name_per_solver_kind_the_former_spelling_warns():
+    """A scene's ``solver.kind`` is the registered kind (the CLI's and the sweeps' name); the
+    former ``modified_newton`` still loads, as ``mnewton``, with a deprecation warning."""
+    assert set(SOLVER_KINDS) == set(jaxanm.solver_kinds())
+    with pytest.warns(DeprecationWarning, match="solver.kind = 'modified_newton' is deprecated: write 'mnewton'"):
+        old = Scene.from_dict({"solver": {"kind": "modified_newton", "max_rate": 0.3}})
+    assert old.solver.kind == "mnewton" and old.solver.make() == jaxanm.ModifiedNewton(max_rate=0.3)
+
+
+def test_a_refused_solver_setting_is_named_by_its_scene_key():
+    """The solver's own check, under the key of the setting it refuses (found by trying each
+    setting alone, not by reading the message); a refused combination names the settings
+    without which the rest is accepted."""
+    with pytest.raises(SceneError, match=r"'solver.criterion' = 'bogus' is invalid: ANM.criterion must be"):
+        Scene.from_dict({"solver": {"kind": "anm", "criterion": "bogus", "tol": 1e-8}})
+    with pytest.raises(SceneError, match=r"'solver.order and solver.pade' = \{'order': 2, 'pade': True\} is "
+                                         r"invalid: ANM.pade=True needs"):
+        Scene.from_dict({"solver": {"kind": "anm", "order": 2, "pade": True, "tol": 1e-8}})
+
+
 def test_max_rate_reaches_modified_newton():
     """``solver.max_rate`` (a sweep tunes modified Newton by it) reaches ``jaxanm.ModifiedNewton``."""
-    s = load_scene("fsw_small").with_overrides({"solver.kind": "modified_newton", "solver.max_rate": "0.3"})
+    s = load_scene("fsw_small").with_overrides({"solver.kind": "mnewton", "solver.max_rate": "0.3"})
     assert s.solver.make() == jaxanm.ModifiedNewton(tol=s.solver.tol, max_rate=0.3)
-    assert load_scene("fsw_small").solver.max_rate == jaxanm.ModifiedNewton().max_rate
+    assert load_scene("fsw_small").solver.setting("max_rate") == jaxanm.ModifiedNewton().max_rate
     with pytest.raises(SceneError, match=r"solver.max_rate.*\(0, 1\)"):
         s.with_overrides({"solver.max_rate": "1.5"})
 

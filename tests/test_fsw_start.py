@@ -99,7 +99,7 @@ def test_quasi_static_run_resumes_bit_identically(tmp_path, monkeypatch):
     # the start is solved once: a resumed run takes its state (and the start's report) from
     # the checkpoint, without solving it again, and matches the uninterrupted run bit for bit
     scene = load_scene("fsw_small").with_overrides(
-        {"time.t_end": 4e-4, "time.save": [2e-4], "solver.kind": "modified_newton",
+        {"time.t_end": 4e-4, "time.save": [2e-4], "solver.kind": "mnewton",
          "mechanics.start": "quasi_static"})
     ref = simulate.run(scene)
 

@@ -133,7 +133,7 @@ def _rise_error(scene, t_end: float) -> float:
     from jaxanm.fsw import axisymmetric as ax
     from jaxanm.fsw import run
 
-    scene = scene.with_overrides({"time.t_end": repr(t_end), "time.save": "", "solver.kind": "modified_newton"})
+    scene = scene.with_overrides({"time.t_end": repr(t_end), "time.save": "", "solver.kind": "mnewton"})
     ref = ax.solve(scene, [t_end])
     with jaxanm.float64():
         res = run(scene)

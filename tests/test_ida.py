@@ -64,7 +64,12 @@ def test_heat_dae_closed_form():
         assert err < 20 * rtol, (rtol, err)
         errs.append(err)
         s = sol.stats
-        assert s.steps > 0 and s.jacobian_evaluations > 0 and s.linear_solves == s.residual_evaluations
+        assert s.time_steps > 0 and s.jacobian_evaluations > 0 and s.newton_iterations == s.residual_evaluations
+        assert s.factorizations == s.jacobian_evaluations  # each IDA matrix setup is one SuperLU factorisation
+        assert isinstance(s, jaxanm.Stats) and s.wall_time_s >= sum(v for k, v in s.wall_time.items() if k != "ida")
+        for old, new in (("steps", "time_steps"), ("wall_s", "wall_time_s"), ("linear_solves", "newton_iterations")):
+            with pytest.warns(DeprecationWarning, match=f"IDAStats.{old} is deprecated: use IDAStats.{new}"):
+                assert getattr(s, old) == getattr(s, new)
     assert errs[1] < errs[0] / 10  # 1000x tighter rtol: the error must drop by far more than 10x
 
 
@@ -228,6 +233,6 @@ def test_failure_says_why():
     yp0 = np.concatenate([-LAM * heat_exact(0.0)[:-1], [1.0]])
     with pytest.raises(IDAFailure) as info:
         integrate_ida(broken, heat_exact(0.0), {"c": np.float64(1.0)}, t0=0.0, t_out=[0.1], rtol=1e-6, yp0=yp0)
-    assert info.value.t == 0.0 and info.value.status < 0 and info.value.reason and info.value.stats.steps == 0
+    assert info.value.t == 0.0 and info.value.status < 0 and info.value.reason and info.value.stats.time_steps == 0
     with pytest.raises(IDAFailure, match="max_steps"):
         integrate_ida(heat_residual, heat_exact(0.0), {"c": np.float64(1.0)}, t0=0.0, t_out=[0.1], max_steps=3)

@@ -22,6 +22,7 @@ from model_problems import impulsive_cubic
 import jaxanm
 import jaxanm._problem
 from jaxanm.checkpoint import read
+from jaxanm.errors import RunInterrupted, run_stopped
 
 STRICT = jaxanm.ANM(order=4, tol=1e-8, max_substeps=2)
 FACTORIZE = jaxanm._problem.factorize
@@ -76,9 +77,25 @@ def test_an_interruption_inside_a_step_reports_the_work_of_that_step(monkeypatch
     path = tmp_path / "run.ckpt"
     with pytest.raises(KeyboardInterrupt) as info:
         _run(max_dt_halvings=30, checkpoint=path)
+    assert isinstance(info.value, RunInterrupted)  # the interrupt, carrying the run's statistics
     assert _counters(info.value.stats) == at_25
     assert _counters(read(path)["stats"]) == at_25
     assert info.value.stats.wall_time_s > 0
+
+
+def test_a_stopped_run_raises_a_new_exception_carrying_declared_fields():
+    """What a run adds to the exception that stopped it (statistics, a partial result, the
+    solver state to retry from) is given to a new exception of the same class, message and
+    fields; the caught one is left as it was, and a field the class does not declare is refused."""
+    caught = jaxanm.StepFailure("series diverged", step=3, t=0.5, amax=0.01)
+    made = caught.carrying(stats=jaxanm.Stats(factorizations=2), partial="so far")
+    assert type(made) is jaxanm.StepFailure and str(made) == str(caught) and made.amax == 0.01
+    assert made.stats.factorizations == 2 and made.partial == "so far" and caught.stats is None
+    with pytest.raises(TypeError, match="declares no field 'extra'"):
+        caught.carrying(extra=1)
+    interrupt = run_stopped(KeyboardInterrupt(), stats=jaxanm.Stats())
+    assert isinstance(interrupt, KeyboardInterrupt) and isinstance(interrupt, RunInterrupted)
+    assert isinstance(interrupt.stats, jaxanm.Stats)
 
 
 @pytest.mark.parametrize("controller", [None, jaxanm.StepController(rtol=1e-3, atol=1e-6)])

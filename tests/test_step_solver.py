@@ -11,11 +11,14 @@ from model_problems import heat_1d, impulsive_cubic
 import jaxanm
 from jaxanm._problem import Problem
 
+ITERATIONS: list = []
+"""The chord iterations of each step :class:`FixedPointNewton` solved, as it counted them."""
+
 
 @dataclasses.dataclass(frozen=True)
 class FixedPointNewton(jaxanm.StepSolver):
     """A user's solver: chord iterations with the Jacobian at the step's start, refreshed every
-    step (written against the public interface only)."""
+    step (written against the public interface only); it reports its iterations."""
 
     tol: float = 1e-10
     max_iter: int = 50
@@ -26,11 +29,13 @@ class FixedPointNewton(jaxanm.StepSolver):
         problem = state.problem
         x = np.array(x_old, dtype=np.float64)
         fact = problem.factorize_at(x, x_old, t, dt, params)
-        for _ in range(self.max_iter):
+        for n in range(1, self.max_iter + 1):
             dx = -fact.solve(problem.residual(x, x_old, t, dt, params))
             x = x + dx
             if problem.norm(dx) <= self.tol * max(problem.norm(x), 1e-300):
-                return x, self.with_factorization(state, fact)
+                ITERATIONS.append(n)
+                report = jaxanm.StepReport(newton_iterations=n)
+                return x, dataclasses.replace(self.with_factorization(state, fact), report=report)
         raise jaxanm.StepFailure("chord iterations did not converge", step=step, t=t)
 
 
@@ -40,6 +45,8 @@ def test_a_user_subclass_runs_in_integrate_and_agrees_with_newton():
     mine = jaxanm.integrate(residual, x0, params, solver=FixedPointNewton(), **kw)
     newton = jaxanm.integrate(residual, x0, params, solver=jaxanm.Newton(tol=1e-10), **kw)
     assert mine.stats.factorizations == mine.stats.time_steps == 10
+    # the time loop, not the solver, adds each step's report to the run's statistics
+    assert mine.stats.newton_iterations == sum(ITERATIONS[-10:]) and len(ITERATIONS) >= 10
     np.testing.assert_allclose(mine.xs, newton.xs, rtol=0, atol=1e-9 * np.abs(newton.xs).max())
 
 

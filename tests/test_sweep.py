@@ -147,7 +147,7 @@ def test_scene_keys_in_a_solver_entry_cross_that_entry_only():
                           {"kind": "anm", "time": {"dt": 0.25}}]})
     assert [t.id for t in g.tasks] == ["dt=1.0-mnewton-tol=1e-08", "dt=0.5-mnewton-tol=1e-08", "dt=0.25-anm"]
     assert [(t.scene.time.dt, t.scene.solver.kind) for t in g.tasks] == [
-        (1.0, "modified_newton"), (0.5, "modified_newton"), (0.25, "anm")]
+        (1.0, "mnewton"), (0.5, "mnewton"), (0.25, "anm")]
     assert all(t.scene.time.t_end == 1.0 and t.ida is None for t in g.tasks)
 
 
@@ -171,7 +171,7 @@ def test_a_richardson_reference_is_three_tasks_at_dt_dt2_dt4():
     assert [t.id for t in ref] == ["richardson-dt=0.025", "richardson-dt=0.0125", "richardson-dt=0.00625"]
     assert [t.scene.time.dt for t in ref] == [0.025, 0.0125, 0.00625]
     assert all((t.scene.time.t_end, t.scene.time.save, t.scene.solver.kind, t.scene.solver.tol, t.scene.time.adaptive)
-               == (0.2, (0.1,), "modified_newton", 1e-10, False) for t in ref)
+               == (0.2, (0.1,), "mnewton", 1e-10, False) for t in ref)
 
 
 RICHARDSON = {"richardson": {"dt": 0.025, "kind": "mnewton", "tol": 1e-10}}

@@ -71,8 +71,11 @@ def scene_keys_markdown() -> str:
                   "| --- | --- |" + " --- |" * len(COMPARED)]
         for key in dataclasses.fields(cls):
             values = [getattr(getattr(s, section), key.name) for s in shipped.values()]
-            lines.append(f"| `{section}.{key.name}` | {_cell(key.default)} | "
-                         + " | ".join(_cell(v) for v in values) + " |")
+            default = _cell(key.default)
+            if cls is sc.SolverSpec and key.name != "kind":  # unset: the solver's own default
+                default = ", ".join(f"{kind}: {_cell(v)}" for kind, v in cls.defaults(key.name).items())
+                values = [s.solver.setting(key.name) for s in shipped.values()]
+            lines.append(f"| `{section}.{key.name}` | {default} | " + " | ".join(_cell(v) for v in values) + " |")
         lines.append("")
     return "\n".join(lines)
 

@@ -9,12 +9,12 @@ import importlib
 import pkgutil
 
 from .anm import ANM
-from .base import AttemptSolver, SolverState, StepSolver, make_solver, solver_kinds
+from .base import AttemptSolver, SolverState, StepReport, StepSolver, make_solver, solver_kinds
 from .newton import ModifiedNewton, Newton
 
 for _module in pkgutil.iter_modules(__path__):
     importlib.import_module(f"{__name__}.{_module.name}")
 del _module
 
-__all__ = ["ANM", "AttemptSolver", "ModifiedNewton", "Newton", "SolverState", "StepSolver", "make_solver",
+__all__ = ["ANM", "AttemptSolver", "ModifiedNewton", "Newton", "SolverState", "StepReport", "StepSolver", "make_solver",
            "solver_kinds"]

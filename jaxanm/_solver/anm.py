@@ -16,6 +16,7 @@ from .._acceptance import (
     CHECK_LIMIT,
     CRITERIA,
     evaluate_series,
+    next_order_suffices,
     promised_accuracy,
     range_of_norms,
     reference_state,
@@ -54,7 +55,7 @@ class _ANMStep(Attempt):
     def run(self, step: int, x_old, t, dt, params, start=None):
         """The accepted state and the residual there (None when not evaluated): ``(x, R(x))``;
         the homotopy starts at ``start`` (default ``x_old``)."""
-        P, st = self.problem, self.problem.stats
+        P, st = self.problem, self.report
         args = (x_old, t, dt, params)
         start = _Start(np.array(x_old if start is None else start, dtype=np.float64))
         substeps = 0
@@ -75,9 +76,12 @@ class _ANMStep(Attempt):
             fresh = self.fact is None
             if fresh:
                 self.fact = P.factorize_in_step(step, d_s, *args, amax=amax, residual_norm=r0_norm)
-            coeffs, accepted = self._series(path, r0, None if fresh else start.c_1, d_s, args)
-            if accepted is not None:
-                return accepted
+            coeffs, outcome = self._series(path, r0, None if fresh else start.c_1, d_s, args, substeps)
+            if isinstance(outcome, _Start):  # a corrected end point missed: on from there
+                start = outcome
+                continue
+            if outcome is not None:
+                return outcome
             amax = self._validity_range(coeffs, d_s)
             failure = dict(step=step, t=t, amax=amax, residual_norm=r0_norm)
             if amax >= 1.0:
@@ -114,7 +118,7 @@ class _ANMStep(Attempt):
         accepted, else where the next series starts (a :class:`_Start`)."""
         approx, a_pade, pade_end = self._try_pade(coeffs, d_s, args)
         if pade_end is not None and pade_end[1] <= CHECK_LIMIT:
-            self.problem.stats.pade_accepted += 1
+            self.report.pade_accepted += 1
             return self._accepted(pade_end[0], a_pade, self.opts.order, pade_end[3])
         if not fresh:  # stale K*: on from the series' end while it contracts, else refactorise
             return self._stale(coeffs, d_s, args, substeps)
@@ -126,24 +130,60 @@ class _ANMStep(Attempt):
         d, r = self._continuation_point(coeffs, d_s, failure["amax"], approx, a_pade, pade_end)
         return _Start(d, r, substep=True)
 
-    def _series(self, path: SeriesPath, r0, c_1, d_s, args):
+    def _series(self, path: SeriesPath, r0, c_1, d_s, args, substeps: int):
         """The series' coefficients ``c_1 .. c_p`` by K* (``c_1`` solved here unless given):
-        ``(coeffs, None)``, or, order-adaptive, ``(None, (x, R(x)))`` when a truncated series is
-        accepted on the way (the norms of ``c_1`` and of the state are taken once)."""
+        ``(coeffs, None)``; order-adaptive, ``(None, (x, R(x) or None))`` when a truncated
+        series is accepted on the way (:meth:`_accept_early`, :meth:`_corrected`), or ``(None,
+        start)`` when a corrected end point missed and the step goes on from there (the norms
+        of ``c_1`` and of the state are taken once)."""
         P, p, opts = self.problem, self.opts.order, self.opts
         coeffs = np.zeros((p, d_s.size))
         coeffs[0] = -P.solve(self.factorized(), r0) if c_1 is None else c_1
-        n1 = P.norm(coeffs[0])
+        n1 = previous = P.norm(coeffs[0])
         state_norm = P.norm(d_s) if opts.criterion == "state" else None
         for j in range(2, p + 1):
             rj = path.next(coeffs[j - 2])
             coeffs[j - 1] = coeffs[j - 2] - P.solve(self.factorized(), rj)
             if opts.adaptive and j < p:
-                amax = range_of_norms(j, n1, P.norm(coeffs[j - 1]), opts.tol, state_norm)
-                accepted = self._accept_early(coeffs[:j], amax, d_s, *args) if amax >= 1.0 else None
-                if accepted is not None:
-                    return None, accepted
+                nj = P.norm(coeffs[j - 1])
+                amax = range_of_norms(j, n1, nj, opts.tol, state_norm)
+                outcome = None
+                if amax >= 1.0:
+                    outcome = self._accept_early(coeffs[:j], amax, d_s, *args)
+                elif next_order_suffices(j, n1, previous, nj, opts.tol, state_norm, opts.max_rate):
+                    outcome = self._corrected(coeffs[:j], d_s, args, substeps)
+                if outcome is not None:
+                    return None, outcome
+                previous = nj
         return coeffs, None
+
+    def _corrected(self, coeffs, d_s, args, substeps: int):
+        """The end point of the series truncated at order ``j = len(coeffs)``, corrected by one
+        modified-Newton step with K* in place of order j + 1 (whose coefficient the contraction
+        of the last two predicts within the tolerance): ``(x, None)`` with ``x = d_end -
+        K*^-1 R(d_end)`` when that correction is within the accuracy eq. 26 promises (modified
+        Newton's test: the error left is the correction's contraction, at most ``max_rate`` of
+        it; the residual at ``x`` is not evaluated).  Else the step goes on from ``d_end`` with
+        the correction as its first coefficient (a :class:`_Start`: the residual and the solve
+        are not lost) when that point is nearer the solution than the series' start, or the
+        series goes on (None)."""
+        P, opts = self.problem, self.opts
+        d_end = d_s + coeffs.sum(axis=0)
+        path = self._path(d_end, args)  # R(d_end) and, on a miss, the next series' start in one evaluation
+        r_end = path.start_residual()
+        if not np.all(np.isfinite(r_end)):
+            return None
+        correction = P.solve(self.factorized(), r_end)
+        distance = P.norm(correction)
+        promised = promised_accuracy(P.norm, opts.tol, coeffs[0], d_end, reference_state(opts.criterion, d_s))
+        j = coeffs.shape[0] + 1  # the correction stands for order j
+        if distance <= promised:
+            state_norm = P.norm(d_s) if opts.criterion == "state" else None
+            return self._accepted(d_end - correction, range_of_norms(j, P.norm(coeffs[0]), distance, opts.tol,
+                                                                     state_norm), j, None)
+        if substeps < opts.max_substeps and distance < P.norm(coeffs[0]):
+            return _Start(d_end, r_end, -correction, substep=True, path=path)
+        return None
 
     def _stale(self, coeffs, d_s, args, substeps: int) -> _Start:
         """Where the step goes on after a series from a stale K* falls short of a = 1, as modified
@@ -224,7 +264,7 @@ class _ANMStep(Attempt):
 
     def _accepted(self, d_end, amax, order, r_end):
         """Record an accepted series (a_max, its order); return ``(d_end, R(d_end))``."""
-        st = self.problem.stats
+        st = self.report
         st.amax.append(amax)
         st.orders.append(order)
         return d_end, r_end
@@ -294,9 +334,15 @@ class ANM(AttemptSolver):
     adaptive : bool
         Order-adaptive series: ``order`` is the maximum, and the series is accepted at the
         first order j whose validity range (eq. 26 with c_j as last term) reaches a = 1 and
-        whose end point passes the check; the orders used are in ``stats.orders``.  ``False``:
-        fixed order p, as in the paper's Table 1.  In both modes order j's jet is truncated to
-        the j - 1 terms known, so a series costs O(p^2) jet terms.
+        whose end point passes the check; the orders used are in ``stats.orders``.  With
+        ``max_rate > 0``, where the contraction of the last two coefficients (at most
+        ``max_rate``) predicts that order j + 1 would reach a = 1, one modified-Newton
+        correction ``-K*^-1 R(d_end)`` of the order-j end point stands for that order: the
+        corrected point is accepted when the correction is within the accuracy eq. 26
+        promises (modified Newton's test), else the step goes on from ``d_end`` with the
+        correction as its first coefficient (docs/method/defaults.md).  ``False``: fixed order
+        p, as in the paper's Table 1.  In both modes order j's jet is truncated to the j - 1
+        terms known, so a series costs O(p^2) jet terms.
     homotopy : {"convex", "newton"}
         The artificial problem whose series is summed at a = 1 (docs/method/homotopies.md).
         ``"convex"`` is the paper's eq. 22, ``(1 - a) K* (d - d_s) + a R(d) = 0``: order j reads

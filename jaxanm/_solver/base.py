@@ -24,6 +24,25 @@ _RETAINED: weakref.WeakSet = weakref.WeakSet()
 K* leaves the set when its last reference goes."""
 
 
+@dataclasses.dataclass
+class StepReport:
+    """What one :meth:`StepSolver.step` did besides the problem's work (which the
+    :class:`~jaxanm._problem.Problem` counts): its fields are named as the
+    :class:`~jaxanm.Stats` counters the time loop adds them to (the loop is their one writer).
+
+    ``newton_iterations`` the Newton corrections made, ``substeps`` the ANM's continuation
+    sub-steps, ``pade_accepted`` the series accepted through their Padé approximant, and, per
+    accepted series, ``amax`` its validity range and ``orders`` its order.  A failed step's
+    report (on the state attached to the failure) holds the work done before it failed.
+    """
+
+    newton_iterations: int = 0
+    substeps: int = 0
+    pade_accepted: int = 0
+    amax: list = dataclasses.field(default_factory=list)
+    orders: list = dataclasses.field(default_factory=list)
+
+
 @dataclasses.dataclass(frozen=True)
 class SolverState:
     """What a step solver carries from one time step to the next, as a value.
@@ -31,7 +50,9 @@ class SolverState:
     ``problem`` is the step problem the solver was made for (:meth:`StepSolver.init`),
     ``factorization`` the factorised K* it holds (or None), ``accepted_residual`` the residual
     at the state the last :meth:`StepSolver.step` returned when the solver evaluated it there
-    (the time loop then records it instead of evaluating it again), else None.  A state is
+    (the time loop then records it instead of evaluating it again), else None; ``report`` the
+    :class:`StepReport` of the step that returned it (or of the failed step it is attached to),
+    which the time loop records in the run's statistics.  A state is
     never changed in place: :meth:`StepSolver.step` returns a new one; who may free the factors
     of its K* is the rule of :class:`StepSolver`.  A solver that carries more subclasses this
     (frozen) dataclass.
@@ -40,6 +61,7 @@ class SolverState:
     problem: Problem
     factorization: Factorization | None = None
     accepted_residual: np.ndarray | None = None
+    report: StepReport | None = None
 
 
 class StepSolver(abc.ABC):
@@ -56,7 +78,9 @@ class StepSolver(abc.ABC):
     :func:`make_solver` and the scenes know it by; registered when the class is defined) and
     implement :meth:`step` (and :meth:`init` if the state carries more than a factorisation).
     The :class:`~jaxanm._problem.Problem` in the state gives residuals, tangents, counted
-    factorisations and solves.  ``reuses_factorization`` says whether the K* a state holds is
+    factorisations and solves; what else a step did (Newton iterations, sub-steps, ...) goes in
+    the new state's ``report`` (a :class:`StepReport`), which the time loop adds to the run's
+    statistics (a solver never writes them itself).  ``reuses_factorization`` says whether the K* a state holds is
     carried to the next step (and so stored in checkpoints).
 
     **The arguments of a step** (the same for every solver): ``state`` the solver's state,
@@ -141,8 +165,8 @@ class StepSolver(abc.ABC):
         """The state to retry from after :meth:`step` from ``state`` raised ``failure``: the one
         the failed step attached (e.g. holding the K* it factorised before failing, which a
         retry then reuses), else ``state``."""
-        attached = getattr(failure, "solver_state", None)
-        return state if attached is None else attached
+        attached = failure.solver_state
+        return attached if isinstance(attached, SolverState) else state
 
     def to_checkpoint(self, state: SolverState):
         """What a checkpoint stores of ``state``: the matrix of the K* carried to the next step,
@@ -184,19 +208,21 @@ def make_solver(kind: str, **options) -> StepSolver:
 
 
 def failed(failure: StepFailure, state: SolverState) -> StepFailure:
-    """``failure`` with the state to retry from attached (:meth:`StepSolver.state_after_failure`)."""
-    failure.solver_state = state
-    return failure
+    """``failure`` carrying the state to retry from (:meth:`StepSolver.state_after_failure`): a
+    new exception, to raise in its place."""
+    return failure.carrying(solver_state=state)
 
 
 class Attempt(abc.ABC):
     """One time step of a built-in solver (``opts``) on ``problem``; ``fact`` is the K* it
-    works with: the state's, replaced as the solver's algorithm says."""
+    works with: the state's, replaced as the solver's algorithm says; ``report`` the
+    :class:`StepReport` it fills."""
 
     def __init__(self, opts: StepSolver, problem: Problem, fact: Factorization | None):
         self.opts = opts
         self.problem = problem
         self.fact = fact
+        self.report = StepReport()
 
     @abc.abstractmethod
     def run(self, step: int, x_old, t, dt, params, start=None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -231,10 +257,11 @@ class AttemptSolver(StepSolver):
         try:
             x, residual = attempt.run(step, x_old, t, dt, params, start)
         except StepFailure as failure:
-            # the same exception, with the state to retry from attached: re-raise it as it is
-            failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None))
-            raise
-        return x, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=residual)
+            # the same failure, carrying the state to retry from (with the failed step's report)
+            raise failed(failure, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=None,
+                                                      report=attempt.report)) from failure.__cause__
+        return x, dataclasses.replace(state, factorization=attempt.fact, accepted_residual=residual,
+                                      report=attempt.report)
 
 
 def check_tol(solver: str, tol) -> None:

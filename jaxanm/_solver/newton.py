@@ -22,7 +22,7 @@ class _NewtonStep(Attempt):
     def run(self, step: int, x_old, t, dt, params, start=None) -> tuple[np.ndarray, None]:
         """Newton iterations from ``x_old`` (or ``start``) until ``|dx| / |x| <= tol``: the
         converged iterate (the residual there is not evaluated: None)."""
-        P, st = self.problem, self.problem.stats
+        P, st = self.problem, self.report
         x = np.array(x_old if start is None else start, dtype=np.float64)
         previous = None
         change = np.inf

@@ -14,12 +14,11 @@ same files as ``jaxanm run --out`` and errors are measured by the same
   :func:`~jaxanm.fsw.simulate.run` on fixed points (:class:`~jaxanm.fsw.record.ProbeSites`).
 - No tracers: advecting them needs the flow between the outputs (``tracers`` is None; the
   mixing figure then shows the fixed points, i.e. no mixing: read it from an implicit-Euler run).
-- ``stats`` is a :class:`jaxanm.Stats`: ``time_steps`` IDA's internal steps,
-  ``factorizations`` and ``jacobian_evaluations`` its Jacobians (each one SuperLU_MT
-  factorisation), ``newton_iterations`` its linear solves, ``wall_time_s`` the whole call
-  (consistent start and compilation included) split into ``jacobian`` and ``other`` (IDA's own
-  linear algebra, the residuals and the consistent start, which the wheel does not time apart;
-  :class:`jaxanm.ida.IDAStats` is kept as ``result.solver["ida_stats"]``).
+- ``stats`` is IDA's :class:`jaxanm.ida.IDAStats` (a :class:`jaxanm.Stats`): ``time_steps``
+  IDA's internal steps, ``factorizations`` and ``jacobian_evaluations`` its Jacobians (each one
+  SuperLU_MT factorisation), ``newton_iterations`` its Newton iterations, ``wall_time_s`` the
+  whole call (consistent start and compilation included) split into ``start``, ``residual``,
+  ``jacobian`` and ``ida`` (IDA's own linear algebra and bookkeeping).
 """
 
 from __future__ import annotations
@@ -91,13 +90,7 @@ def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None
         values = np.array([model.values(x, at) for x in xs])
         sections[sec.name] = {"x": targets[:, 0], "y": targets[:, 1], "s": np.hypot(*(targets - targets[0]).T),
                               **model.full_values(values)}
-    s = sol.stats
-    stats = jaxanm.Stats(factorizations=s.jacobian_evaluations, jacobian_evaluations=s.jacobian_evaluations,
-                         time_steps=s.steps, residual_evaluations=s.residual_evaluations,
-                         newton_iterations=s.linear_solves)
-    stats.wall_time["jacobian"] = s.wall_time["jacobian"]
-    stats.close(s.wall_s)
-    solver = {"rtol": float(rtol), "atol": float(atol), "max_order": int(max_order), "ida_stats": s.summary()}
+    solver = {"rtol": float(rtol), "atol": float(atol), "max_order": int(max_order)}
     return FSWResult(scene=scene, t=t_saved, points=np.repeat(cloud.points[None], t_saved.size, axis=0),
                      u=u, v=v, T=T, material=cloud.material.copy(), probes=probes, sections=sections,
-                     stats=stats, solver=solver, tracers=None)
+                     stats=sol.stats, solver=solver, tracers=None)

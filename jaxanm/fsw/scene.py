@@ -35,15 +35,14 @@ from .effects import EFFECTS, REGISTRY, scene_value
 from .scene_sections import (  # noqa: F401 - re-exported: the sections are part of this module's API
     EDGE_ROWS,
     EDGE_SOURCES,
+    KIND_ALIASES,
     LAYOUTS,
     MAX_ORDER,
     MAX_POINTS,
     MAX_SAMPLES,
     MAX_STEPS,
     NAME_CHARS,
-    REGISTERED_KIND,
     SOLVER_KINDS,
-    SOLVER_NAMES,
     SOLVER_OPTIONS,
     STARTS,
     Geometry,
@@ -67,11 +66,11 @@ __all__ = [
     "EFFECTS",
     "EFFECT_REQUIRES",
     "Geometry",
+    "KIND_ALIASES",
     "Material",
     "Mechanics",
     "Probe",
     "SOLVER_KINDS",
-    "SOLVER_NAMES",
     "SOLVER_OPTIONS",
     "Scene",
     "SceneError",
@@ -278,8 +277,9 @@ def _and_requirements(name: str) -> str:
 
 
 def _section_dict(obj) -> dict:
-    return {f.name: (list(v) if isinstance(v := getattr(obj, f.name), tuple) else v)
-            for f in dataclasses.fields(obj)}
+    """A section's keys in the TOML layout; an unset one (None: its owner's default) is left out."""
+    return {f.name: (list(v) if isinstance(v, tuple) else v)
+            for f in dataclasses.fields(obj) if (v := getattr(obj, f.name)) is not None}
 
 
 def _section_from(cls, table, where: str):

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
+import warnings
 
 from .. import scheme_names
 from ..errors import InputError
@@ -23,6 +23,7 @@ __all__ = [
     "EDGE_ROWS",
     "EDGE_SOURCES",
     "Geometry",
+    "KIND_ALIASES",
     "LAYOUTS",
     "MAX_ORDER",
     "MAX_POINTS",
@@ -33,7 +34,6 @@ __all__ = [
     "Mechanics",
     "Probe",
     "SOLVER_KINDS",
-    "SOLVER_NAMES",
     "SOLVER_OPTIONS",
     "STARTS",
     "SceneError",
@@ -48,14 +48,12 @@ LAYOUTS = ("polar", "grid", "graded")
 EDGE_ROWS = ("flux", "half_cell")
 EDGE_SOURCES = ("point", "exponential")
 """Temperature rows of the plate-edge points (:class:`Thermal`)."""
-_SCENE_KIND = {"mnewton": "modified_newton"}
-"""A registered solver kind whose scenes spell it out (the file format keeps its longer name)."""
-SOLVER_NAMES = {kind: _SCENE_KIND.get(kind, kind) for kind in solver_kinds()}
-"""The table of solver kinds: registered kind (:func:`jaxanm.solver_kinds`: the CLI's
-``--solver``, a sweep grid's ``kind``) -> ``solver.kind`` of a scene (:class:`SolverSpec`).  A
-solver added to ``jaxanm/_solver/`` appears here by its kind."""
-SOLVER_KINDS = tuple(SOLVER_NAMES.values())
-"""The ``solver.kind`` values a scene accepts."""
+SOLVER_KINDS = solver_kinds()
+"""The ``solver.kind`` values a scene accepts: the registered kinds (:func:`jaxanm.solver_kinds`),
+the names the CLI's ``--solver`` and a sweep grid's ``kind`` take too.  A solver added to
+``jaxanm/_solver/`` appears here by its kind."""
+KIND_ALIASES = {"modified_newton": "mnewton"}
+"""Former spellings of a ``solver.kind``, still read (with a :class:`DeprecationWarning`) -> the kind."""
 STARTS = ("rest", "quasi_static", "continuation")
 """Flows at t = 0 (:class:`Mechanics`)."""
 MAX_POINTS = 200_000
@@ -150,8 +148,14 @@ def _as_bool(field: str, value) -> bool:
     return value
 
 
+def _unset_or(convert):
+    """``convert`` that keeps None (a setting left to its owner's default)."""
+    return lambda field, value: None if value is None else convert(field, value)
+
+
 _CONVERTERS = {"float": _as_float, "int": _as_int, "str": as_str, "bool": _as_bool,
                "tuple[float, ...]": _as_floats, "tuple[str, ...]": as_strs}
+_CONVERTERS.update({f"{name} | None": _unset_or(conv) for name, conv in list(_CONVERTERS.items())})
 
 
 class _Section:
@@ -445,70 +449,104 @@ class Time(_Section):
 
 @dataclasses.dataclass(frozen=True)
 class SolverSpec(_Section):
-    """Nonlinear step solver: ``kind`` (a registered kind, ``anm | newton | modified_newton``) and
-    the options of that kind's solver, each passed on only to a solver that takes it and
-    validated by the solver itself: ``tol``; ANM ``order``, ``criterion`` (``increment``: the
-    paper's eq. 26, or ``state``: see :class:`jaxanm.ANM`), ``max_substeps``, ``adaptive``
-    (order-adaptive series, ``order`` the maximum), ``homotopy`` (``convex``: the paper's eq. 22,
-    or ``newton``: see :class:`jaxanm.ANM`) and ``pade`` (accept series through their Padé
-    approximant, :class:`jaxanm.ANM`); the Newton solvers' ``max_iter`` (0: the solver's own
-    default) and modified Newton's ``max_rate`` (the contraction above which it rebuilds its
-    Jacobian, :class:`jaxanm.ModifiedNewton`).  The scene adds one rule of its own: ``order`` at
-    most :data:`MAX_ORDER`."""
+    """Nonlinear step solver: ``kind`` (a registered kind, ``anm | newton | mnewton``; the former
+    ``modified_newton`` is read as ``mnewton``, with a :class:`DeprecationWarning`) and
+    the settings of that kind's solver, handed as they are to :func:`jaxanm.make_solver`, which
+    validates them.  A setting the scene does not give (None) is the solver's own default
+    (:class:`jaxanm.ANM`, :class:`jaxanm.Newton`, :class:`jaxanm.ModifiedNewton`): the defaults
+    live in the solvers alone.  The keys are the solvers' options (their dataclass fields,
+    :data:`SOLVER_OPTIONS`): ``tol``; ANM ``order``, ``criterion``, ``max_substeps``,
+    ``adaptive``, ``homotopy``, ``pade``; the Newton solvers' ``max_iter`` (0: the solver's own
+    default, as unset) and ``max_rate`` (the ANM's and modified Newton's).  A setting is passed
+    on only to a solver that takes it.  The scene adds one rule of its own: ``order`` at most
+    :data:`MAX_ORDER`."""
 
     _name = "solver"
     kind: str = "anm"
-    order: int = 7
-    tol: float = 1e-6
-    criterion: str = "increment"
-    max_substeps: int = 50
-    adaptive: bool = False
-    homotopy: str = "convex"
-    pade: bool = False
-    max_iter: int = 0
-    max_rate: float = 0.5
+    order: int | None = None
+    tol: float | None = None
+    criterion: str | None = None
+    max_substeps: int | None = None
+    adaptive: bool | None = None
+    homotopy: str | None = None
+    pade: bool | None = None
+    max_iter: int | None = None
+    max_rate: float | None = None
 
     def _validate(self):
+        if self.kind in KIND_ALIASES:
+            warnings.warn(f"solver.kind = {self.kind!r} is deprecated: write {KIND_ALIASES[self.kind]!r}",
+                          DeprecationWarning, stacklevel=5)
+            object.__setattr__(self, "kind", KIND_ALIASES[self.kind])
         check("solver.kind", self.kind, self.kind in SOLVER_KINDS, f"must be one of {SOLVER_KINDS}")
-        check("solver.order", self.order, self.order <= MAX_ORDER,
-               f"must be at most {MAX_ORDER}: the jet series compiles in a time that grows steeply with the order")
-        check("solver.max_iter", self.max_iter, self.max_iter >= 0,
-               "must be an integer >= 0 (0: the solver's own default)")
+        if self.order is not None:
+            check("solver.order", self.order, self.order <= MAX_ORDER,
+                  f"must be at most {MAX_ORDER}: the jet series compiles in a time that grows steeply with the order")
         try:
             self.make()
-        except InputError as exc:  # the solver's own check: name the scene's key
-            named = re.match(r"\w+\.(\w+)", str(exc))  # the solver's messages start "ANM.order ..."
-            field = named.group(1) if named and named.group(1) in self.options() else "kind"
-            _fail(f"solver.{field}", getattr(self, field), str(exc))
+        except InputError as exc:  # the solver's own check, under the scene keys it came from
+            names = self._refused_settings()
+            if len(names) == 1:
+                _fail(f"solver.{names[0]}", getattr(self, names[0]), str(exc))
+            _fail(" and ".join(f"solver.{n}" for n in names) or "solver",
+                  {n: getattr(self, n) for n in names} if names else self.options(), str(exc))
+
+    def _refused_settings(self) -> list:
+        """The settings the kind's solver refuses: the first refused alone (each tried on the
+        solver's defaults), else those without which the rest is accepted (a refused
+        combination, e.g. ``pade`` with a low ``order``)."""
+        kind, given = self.kind, self.options()
+
+        def refused(options: dict) -> bool:
+            try:
+                make_solver(kind, **options)
+            except InputError:
+                return True
+            return False
+
+        alone = [name for name, value in given.items() if refused({name: value})]
+        if alone:
+            return alone[:1]
+        return [name for name in given if not refused({k: v for k, v in given.items() if k != name})]
 
     def options(self) -> dict:
-        """The fields the kind's solver takes, as its keyword arguments (``max_iter`` = 0 left out:
-        the solver's default)."""
-        opts = {name: getattr(self, name) for name in SOLVER_OPTIONS[REGISTERED_KIND[self.kind]]}
-        if opts.get("max_iter") == 0:
-            del opts["max_iter"]
-        return opts
+        """The settings the scene gives that the kind's solver takes, as its keyword arguments
+        (unset ones, and ``max_iter`` = 0, left out: the solver's defaults)."""
+        opts = {name: getattr(self, name) for name in SOLVER_OPTIONS[self.kind]}
+        return {k: v for k, v in opts.items() if v is not None and not (k == "max_iter" and v == 0)}
+
+    def setting(self, name: str):
+        """The value of option ``name`` the scene's solver runs with: the scene's, else the
+        solver's default (None when the kind takes no such option)."""
+        return getattr(self.make(), name, None)
+
+    @staticmethod
+    def defaults(name: str) -> dict:
+        """The default of option ``name`` per kind whose solver takes it (the solver's own:
+        what an unset ``solver.<name>`` means)."""
+        return {kind: fields[name].default for kind in SOLVER_KINDS if name in (fields := _solver_fields(kind))}
 
     def make(self):
-        """The :mod:`jaxanm` solver of this kind with these options (e.g. ``jaxanm.ANM``), built by
+        """The :mod:`jaxanm` solver of this kind with these settings (e.g. ``jaxanm.ANM``), built by
         :func:`jaxanm.make_solver`, which validates them."""
-        return make_solver(REGISTERED_KIND[self.kind], **self.options())
+        return make_solver(self.kind, **self.options())
 
 
-REGISTERED_KIND = {scene_kind: kind for kind, scene_kind in SOLVER_NAMES.items()}
-"""``solver.kind`` of a scene -> the registered kind (:data:`SOLVER_NAMES` inverted)."""
+def _solver_fields(kind: str) -> dict:
+    """The options of the registered solver ``kind``: name -> dataclass field (every step solver
+    is a dataclass: its fields are its options)."""
+    solver = make_solver(kind)
+    assert dataclasses.is_dataclass(solver)
+    return {f.name: f for f in dataclasses.fields(solver) if f.init}
 
 
 def _scene_options(kind: str) -> tuple:
-    """The ``solver.*`` fields the registered solver ``kind`` takes, in the scene's order (every
-    step solver is a dataclass: its fields are its options)."""
-    solver = make_solver(kind)
-    assert dataclasses.is_dataclass(solver)
-    takes = {f.name for f in dataclasses.fields(solver)}
+    """The ``solver.*`` fields the registered solver ``kind`` takes, in the scene's order."""
+    takes = _solver_fields(kind)
     return tuple(f.name for f in dataclasses.fields(SolverSpec) if f.name in takes)
 
 
-SOLVER_OPTIONS = {kind: _scene_options(kind) for kind in SOLVER_NAMES}
+SOLVER_OPTIONS = {kind: _scene_options(kind) for kind in SOLVER_KINDS}
 """For each registered solver kind, the ``solver.*`` fields of a scene its solver takes (in the
 scene's order): what :meth:`SolverSpec.make` passes on, and the settings a sweep's ``[[solvers]]``
 entry may give for that kind."""

@@ -19,13 +19,24 @@ def scene_toml(scene) -> str:
         if isinstance(table, dict):
             lines += ["", f"[{section}]"]
             for key, value in table.items():
-                default = defaults[section][key]
-                note = "default" if value == default else f"default {_toml_value(default)}"
-                lines.append(f"{key} = {_toml_value(value)}  # {note}")
+                lines.append(f"{key} = {_toml_value(value)}  # {_default_note(scene, section, key, value, defaults)}")
     for key in ("probes", "sections"):
         for item in data[key]:
             lines += ["", f"[[{key}]]", *(f"{k} = {_toml_value(v)}" for k, v in item.items())]
     return "\n".join(lines)
+
+
+def _default_note(scene, section: str, key: str, value, defaults: dict) -> str:
+    """``default`` when ``value`` is the key's default, else ``default <it>``; a solver setting's
+    default is the scene's solver's own (``not used by <kind>`` when that solver has no such option)."""
+    if section == "solver" and key != "kind":
+        by_kind = scene.solver.defaults(key)
+        if scene.solver.kind not in by_kind:
+            return f"not used by {scene.solver.kind}"
+        default = by_kind[scene.solver.kind]
+    else:
+        default = defaults[section][key]
+    return "default" if value == default else f"default {_toml_value(default)}"
 
 
 def _toml_value(value) -> str:

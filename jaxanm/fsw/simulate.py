@@ -23,6 +23,7 @@ from typing import Callable
 
 import jaxanm
 
+from ..errors import run_stopped
 from .discretisation import Model, discretise
 from .lagrangian import RunRecorder, motion_dt_max
 from .record import FSWResult
@@ -131,8 +132,9 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         Bad checkpoint options, or a checkpoint written for another scene or solver.
     KeyboardInterrupt
         The run was interrupted (SIGINT, or SIGTERM as :class:`jaxanm.checkpoint.Interrupted`);
-        the exception carries ``partial``: the :class:`FSWResult` of the steps done so far
-        (also on :class:`jaxanm.StepFailure`).
+        the exception (a :class:`jaxanm.errors.RunInterrupted`) carries ``partial``: the
+        :class:`FSWResult` of the steps done so far (also a :class:`jaxanm.StepFailure`'s: both are
+        :class:`jaxanm.errors.RunStopped`).
     """
     solver = scene.solver.make() if solver is None else solver
     scheme = jaxanm.make_scheme(scene.time.scheme)  # the scene refuses one its points cannot serve
@@ -168,13 +170,12 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
                                progress=progress, callback=step_done, checkpoint=checkpoint,
                                checkpoint_every=checkpoint_every, resume=resume, host_state=host,
                                controller=controller)
-    except (KeyboardInterrupt, jaxanm.StepFailure) as exc:
+    except (KeyboardInterrupt, jaxanm.StepFailure) as caught:
+        exc = run_stopped(caught)  # an interrupt before integrate's loop carries nothing yet
         try:  # the steps recorded so far (integrate defers signals while recording), with integrate's
             # statistics: they count the work of the step it stopped in, which no callback reported
-            stats = getattr(exc, "stats", None)
-            partial = recorder.result(solver, latest["stats"] if stats is None else stats)
-            exc.partial = partial  # type: ignore[union-attr]  # an interrupt stays a KeyboardInterrupt
+            partial = recorder.result(solver, latest["stats"] if exc.stats is None else exc.stats)
         except Exception:  # noqa: BLE001 - a broken recorder must not hide the original error
-            pass
-        raise
+            raise exc from caught.__cause__
+        raise exc.carrying(partial=partial) from caught.__cause__
     return recorder.result(solver, sol.stats, sol.time_error)

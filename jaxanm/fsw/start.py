@@ -42,7 +42,7 @@ import numpy as np
 from ..checkpoint import stored_type
 from ..continuation import continuation
 from ..errors import StepFailure
-from ..internal import Problem, entry_point, factorize, relative_change
+from ..internal import Problem, count, entry_point, factorize, relative_change
 from ..stats import Stats
 from .discretisation import Model, make_model
 from .effects import REGISTRY
@@ -285,7 +285,7 @@ def quasi_static_state(scene, model: Model, stencils, tol: float = 1e-8, max_ite
         report.iterations += before.iterations
         report.step_lengths = before.step_lengths + report.step_lengths
         report.residual_norms = before.residual_norms + report.residual_norms
-        report.stats.factorizations += before.stats.factorizations
+        count(report.stats, "factorizations", before.stats.factorizations)
     for leg in legs:
         if leg.end != leg.begin:
             later = {g.constant: np.float64(g.begin) for g in legs[legs.index(leg) + 1:]}

@@ -69,8 +69,8 @@ from pathlib import Path
 
 from jaxanm.errors import InputError
 from jaxanm.fsw.scene import (
-    REGISTERED_KIND,
-    SOLVER_NAMES,
+    KIND_ALIASES,
+    SOLVER_KINDS,
     SOLVER_OPTIONS,
     Scene,
     SceneError,
@@ -308,19 +308,20 @@ def _list_valued(flat: dict, base: Scene) -> set:
 def _solver_points(value, base: Scene, source: str) -> list[dict]:
     """Every point of the ``solvers`` entries: ``{"solver.<key>": value}`` (kind as the scene names
     it, or ``ida``) and the entry's own scene overrides (dotted keys)."""
-    scene_kinds = REGISTERED_KIND
-    kinds_text = ", ".join([*SOLVER_NAMES, IDA])
+    kinds_text = ", ".join([*SOLVER_KINDS, IDA])
     points = []
     for i, raw in enumerate(_entries(value, "solvers", source)):
         where = f"{source}: [solvers]" if isinstance(value, dict) else f"{source}: [[solvers]] #{i + 1}"
         entry = _flatten(raw)
         scene_part = {k: v for k, v in entry.items() if "." in k}
         _check_scene_keys(scene_part, where)
-        kinds = entry.get("kind", scene_kinds[base.solver.kind])
+        kinds = entry.get("kind", base.solver.kind)
         for kind in kinds if isinstance(kinds, list) else [kinds]:
-            if not isinstance(kind, str) or (kind not in SOLVER_KEYS and kind not in scene_kinds):
+            if isinstance(kind, str) and kind in KIND_ALIASES:  # a former spelling: the scene warns of it
+                kind = KIND_ALIASES[kind]
+            if not isinstance(kind, str) or kind not in SOLVER_KEYS:
                 raise GridError(f"{where}: kind = {kind!r} is unknown; use one of {kinds_text}")
-            short = scene_kinds.get(kind, kind)
+            short = kind
             for key in entry:
                 if key == "kind" or key in scene_part:
                     continue
@@ -330,7 +331,7 @@ def _solver_points(value, base: Scene, source: str) -> list[dict]:
                            else "it is not a solver setting")
                     raise GridError(f"{where}: {key!r}: {why}; kind {short!r} takes "
                                     f"{', '.join(SOLVER_KEYS[short])} (put other kinds in their own [[solvers]] entry)")
-            fixed = {"solver.kind": IDA if short == IDA else SOLVER_NAMES[short]} if "kind" in entry else {}
+            fixed = {"solver.kind": short} if "kind" in entry else {}
             settings = {f"solver.{k}": v for k, v in entry.items() if k != "kind" and k not in scene_part}
             solver = _product(settings, set(), where)
             scenes = _product(scene_part, _list_valued(scene_part, base), where)
@@ -386,7 +387,7 @@ def _task_ids(points: list[dict], keys: tuple) -> list[str]:
             if key not in p:
                 continue
             if key == "solver.kind":
-                parts.append(REGISTERED_KIND.get(p[key], p[key]))
+                parts.append(p[key])
             else:
                 parts.append(f"{end if ends.count(end) == 1 else key}={_format(p[key])}")
         ids.append(re.sub(r"[^A-Za-z0-9_.+=-]", "_", "-".join(parts)) or "run")

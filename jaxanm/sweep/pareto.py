@@ -19,8 +19,9 @@ from jaxanm.checkpoint import atomic_path
 
 __all__ = ["MARKERS", "cheapest", "method", "pareto_front", "plot_pareto"]
 
-MARKERS = {"anm": "o", "newton": "s", "modified_newton": "^", "ida": "*"}
-"""Marker of each solver kind (``summary.json``'s ``solver.kind``)."""
+MARKERS = {"anm": "o", "newton": "s", "mnewton": "^", "modified_newton": "^", "ida": "*"}
+"""Marker of each solver kind (``summary.json``'s ``solver.kind``; ``modified_newton``: the former
+spelling of ``mnewton``, in older tables)."""
 
 
 def pareto_front(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
