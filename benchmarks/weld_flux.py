@@ -56,7 +56,7 @@ of the window (advances 0.94, 0.063, 0.94 and 0.050 mm per revolution)."""
 
 
 FLUX_CASES = (("incompressible (fsw_weld)", {}), ("penalty 4.08e5 Pa s (before)", PENALTY),
-              ("incompressible (fsw_weld), modified Newton", {"solver.kind": "modified_newton"}))
+              ("incompressible (fsw_weld), modified Newton", {"solver.kind": "mnewton"}))
 """The flux study's runs: the scene as shipped, as it was before, and the first with the other solver."""
 
 

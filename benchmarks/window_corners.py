@@ -5,7 +5,7 @@ The five points are tasks of the process-window sweep (`benchmarks/grids/process
 omega 10 and 200 rad/s at advances of 0.05 and 1 mm per revolution, and omega = 44.7 rad/s at
 0.224 mm), whose runs are `fsw_weld` from rest to 0.1 s with the scene's solver, the ANM: their
 rows are read from the sweep's `results.csv`, not run again.  Modified Newton (`solver.kind =
-"modified_newton"`, the scene's other settings) is run here on the same scenes; the study resumes
+"mnewton"`, the scene's other settings) is run here on the same scenes; the study resumes
 from the rows of an earlier call (only the points not there are run).
 
     nice -n 10 python benchmarks/window_corners.py results/sweep-process_window --out benchmarks/results/window_corners
@@ -54,8 +54,8 @@ def mnewton_row(omega: float, U: float) -> dict:
     """fsw_weld at (omega, U) from rest to 0.1 s with modified Newton."""
     scene = load_scene("fsw_weld").with_overrides({"tool.omega": omega, "tool.traverse_speed": U, "time.t_end": 0.1,
                                                    "time.save": [0.025, 0.05, 0.075, 0.1],
-                                                   "solver.kind": "modified_newton"})
-    row = {"omega": omega, "U": U, "solver": "modified_newton"}
+                                                   "solver.kind": "mnewton"})
+    row = {"omega": omega, "U": U, "solver": "mnewton"}
     began = time.perf_counter()
     try:
         result = run(scene)
@@ -88,7 +88,7 @@ def markdown(data: dict) -> str:
         wall = "-" if r.get("wall_s") is None else f"{r['wall_s']:.0f}"
         lines.append(f"| {r['omega']:g} | {r['U'] * 1e3:.4g} | {advance:.3f} | {r['solver']} | {outcome} | {counts} "
                      f"| {wall} |")
-    missing = [(o, U, solver) for o, U in POINTS for solver in ("anm", "modified_newton")
+    missing = [(o, U, solver) for o, U in POINTS for solver in ("anm", "mnewton")
                if not any(r["omega"] == o and r["U"] == U and r["solver"] == solver for r in data["rows"])]
     if missing:
         lines += ["", "Not run yet (the study resumes from these rows): "
@@ -104,7 +104,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     out = Path(args.out)
     old = json.loads(out.with_suffix(".json").read_text()) if out.with_suffix(".json").exists() else {}
-    done = [r for r in old.get("rows", []) if r["solver"] == "modified_newton"]
+    done = [r for r in old.get("rows", []) if r["solver"] == "mnewton"]
     before = os.getloadavg()[0]
     for omega, U in POINTS:
         if any(r["omega"] == omega and r["U"] == U for r in done):
