@@ -31,10 +31,13 @@ def process_summary(result) -> dict | None:
 
     ``power`` is the torque times omega (:func:`jaxanm.fsw.energy.tool_torque`),
     ``dissipation`` the plastic dissipation ``int 3 mu epsbar^2`` of the plate
-    (:func:`jaxanm.fsw.energy.dissipated_power`): with a sticking tool they agree as far as
-    the edge stress is resolved.  ``mass_flux_error`` is the largest error of the fluxes
-    through the sections and circles of :func:`jaxanm.fsw.mass_flux.flux_table` over the saved
-    times, in units of the through-flow ``2 R2 U`` (sections) and ``2 r U`` (circles).
+    (:func:`jaxanm.fsw.energy.dissipated_power`): with a sticking tool the dissipation takes up
+    the torque's power plus the work of the ring that pushes the plate past the pin at U, so it
+    exceeds the power, by a few per cent at the smallest advances per revolution and by a
+    quarter at the largest (benchmarks/results/process_window.md).  ``mass_flux_error`` is the
+    largest error of the fluxes through the sections and circles of
+    :func:`jaxanm.fsw.mass_flux.flux_table` over the saved times, in units of the through-flow
+    ``2 R2 U`` (sections) and ``2 r U`` (circles).
     """
     scene = getattr(result, "scene", None)
     if not isinstance(scene, Scene) or not scene.has("traverse") or scene.tool.traverse_speed <= 0 or len(result.t) < 1:
