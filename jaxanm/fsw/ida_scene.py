@@ -23,15 +23,14 @@ same files as ``jaxanm run --out`` and errors are measured by the same
 
 from __future__ import annotations
 
-from typing import Any, TypedDict
+from typing import TypedDict
 
 import numpy as np
 
 import jaxanm
 
 from .discretisation import discretise
-from .geometry import evaluate_stencils
-from .record import FSWResult, ProbeSites
+from .record import FSWResult, Recorder
 from .scene import Scene
 
 __all__ = ["IDA_DEFAULTS", "run_ida"]
@@ -70,27 +69,9 @@ def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None
     with jaxanm.float64():
         sol = integrate_ida(model.residual, x0, params, t0=0.0, t_out=times, rtol=float(rtol), atol=float(atol),
                             max_order=int(max_order), scale=model.scale(), sparsity=model.sparsity)
-    vals = np.concatenate([model.initial_values(cloud.points)[None],
-                           np.array([model.values(x, st) for x in sol.xs])])  # (S, N, F)
-    full = model.full_values(vals)
-    u, v, T = full["u"], full["v"], full["T"]
-    t_saved = np.concatenate([[0.0], sol.ts])
-    probes: dict[str, Any] = {"t": t_saved}
-    sites = ProbeSites.of(scene, cloud)
-    at = [sites.at_rest(model)] + [sites.values(model, x) for x in sol.xs]  # from rest, as a run
-    for j, name in enumerate(sites.names):
-        probes[name] = {"x": np.full(t_saved.size, sites.positions[j, 0]),
-                        "y": np.full(t_saved.size, sites.positions[j, 1]),
-                        **{k: np.array([a[k][j] for a in at]) for k in "uvT"}}
-    sections: dict[str, Any] = {"t": t_saved}
-    xs = [x0, *sol.xs]
-    for sec in scene.sections:
-        targets = np.linspace(sec.start, sec.end, sec.samples)
-        at = evaluate_stencils(cloud.points, cloud.n_tool, scene.geometry, targets, derivatives=False)
-        values = np.array([model.values(x, at) for x in xs])
-        sections[sec.name] = {"x": targets[:, 0], "y": targets[:, 1], "s": np.hypot(*(targets - targets[0]).T),
-                              **model.full_values(values)}
+    # the same records as a run on fixed points, from IDA's states at the save times
+    recorder = Recorder(scene, model, st, x0, frozenset(float(t) for t in sol.ts), tracers=False)
+    for t, x in zip(sol.ts, sol.xs):
+        recorder.record_state(t, x, st)
     solver = {"rtol": float(rtol), "atol": float(atol), "max_order": int(max_order)}
-    return FSWResult(scene=scene, t=t_saved, points=np.repeat(cloud.points[None], t_saved.size, axis=0),
-                     u=u, v=v, T=T, material=cloud.material.copy(), probes=probes, sections=sections,
-                     stats=sol.stats, solver=solver, tracers=None)
+    return recorder.result(solver, sol.stats)

@@ -274,18 +274,18 @@ class RunRecorder(Recorder):
         """The :func:`jaxanm.integrate` hook: record, then move the cloud (Lagrangian) or tracers."""
         model, scene = self.model, self.scene
         dt = float(t_new) - self.t
-        self.t = float(t_new)
         x = np.asarray(x)
+        if self.tracers is not None:
+            self.tracers = self._advected(self.tracers, x, dt)
+        if not model.effects.lagrangian:
+            self.record_state(t_new, x, params["st"])
+            return params
+        self.t = float(t_new)
         values = model.values(x, params["st"])
         full = model.full_values(values)
         save = self.t in self.save_times
         if save:
             self._save_sections(x)
-        if self.tracers is not None:
-            self.tracers = self._advected(self.tracers, x, dt)
-        if not model.effects.lagrangian:
-            self._record(self.t, self.points, full, save, self._at_probes(self.points, full, x))
-            return params
         # Recorded at t_new: the material points where this step's velocity takes them (the
         # step was solved on the cloud of the previous positions, as before any rezoning).
         kind, omega = model.cloud.kind, scene.tool.omega

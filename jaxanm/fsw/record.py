@@ -149,7 +149,9 @@ class Recorder:
 
     ``save_times``: the end times of the saved steps, from the run's :class:`jaxanm.SaveAt`
     (:meth:`~jaxanm.SaveAt.times`); ``initial``: field values (N, len(fields)) at the points at
-    t = 0 (default: the model's rest state); ``start``: the StartReport of a quasi-static start.
+    t = 0 (default: the model's rest state); ``start``: the StartReport of a quasi-static start;
+    ``tracers=False`` records no tracers even if the scene has them (a recorder fed states far
+    apart, which cannot advect them).
     The state at t = 0 is recorded on construction.
     """
 
@@ -161,7 +163,7 @@ class Recorder:
     times, probe sites and section points) are made again from the scene on resume."""
 
     def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_times: frozenset,
-                 initial: np.ndarray | None = None, start: StartReport | None = None):
+                 initial: np.ndarray | None = None, start: StartReport | None = None, tracers: bool = True):
         self.scene, self.model, self.save_times = scene, model, save_times
         cloud = model.cloud
         self.points = cloud.points.copy()
@@ -174,7 +176,7 @@ class Recorder:
         self.probes: dict[str, Any] = {"t": [], **{p.name: {k: [] for k in "xyuvT"} for p in scene.probes}}
         self.saved: dict[str, list] = {"t": [], "points": [], "nodes": [], "u": [], "v": [], "T": []}
         self.sections: dict[str, Any] = {"t": [], **{name: {k: [] for k in "uvT"} for name in self.section_points}}
-        self.tracers = cloud.points.copy() if model.effects.tracers else None
+        self.tracers = cloud.points.copy() if model.effects.tracers and tracers else None
         self.tracer_saves: list[np.ndarray] = []
         self.rezone_times: list[float] = []
         self.start = start
@@ -203,6 +205,19 @@ class Recorder:
             raise jaxanm.InputError(f"the checkpoint's recorder lacks {', '.join(missing)}: start the run afresh")
         for name in self.CHECKPOINTED:
             setattr(self, name, stored[name])
+
+    def record_state(self, t: float, x, stencils) -> None:
+        """Record the unknowns ``x`` at time ``t`` on the fixed points (no motion): the probes,
+        and at a save time the fields and sections.  A run on fixed points (its step hook) and
+        IDA (its outputs) pass their states through here in time order; ``stencils``: the
+        cloud's, as in the model's parameters."""
+        self.t = float(t)
+        x = np.asarray(x)
+        full = self.model.full_values(self.model.values(x, stencils))
+        save = self.t in self.save_times
+        if save:
+            self._save_sections(x)
+        self._record(self.t, self.points, full, save, self._at_probes(self.points, full, x))
 
     def _at_probes(self, positions: np.ndarray, values: dict, state=None) -> dict:
         """``{"x", "y", "u", "v", "T": (P,)}`` at the probes in one step.
