@@ -43,10 +43,11 @@ FSW_IMPORTS = {
     "io": set(),
     "io.figures": {"scene", "record"},
     "io.weld_figures": {"io.figures"},
-    "io.output": {"scene", "geometry", "record", "axisymmetric", "oscillation", "io", "io.figures",
+    "io.output": {"scene", "geometry", "record", "continuum_error", "oscillation", "io", "io.figures",
                   "io.weld_figures", "process"},
     # analyses of a scene or of results, beside the flow
     "axisymmetric": {"scene"},
+    "continuum_error": {"scene", "axisymmetric"},
     "oscillation": set(),
     "compare": set(),
     "energy": {"scene", "geometry", "physics", "discretisation"},

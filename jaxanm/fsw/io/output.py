@@ -93,19 +93,19 @@ def spatial_accuracy(result) -> dict | None:
     For a run of a :class:`~jaxanm.fsw.scene.Scene` (None for anything else):
 
     - with ``viscous``: ``shear_band_width_m``, the width of the shear band at the tool edge
-      (:func:`jaxanm.fsw.axisymmetric.shear_band_width`, closed-form cheap),
+      (:func:`jaxanm.fsw.continuum_error.shear_band_width`, closed-form cheap),
       ``edge_spacing_m``, the radial point spacing there
       (:func:`jaxanm.fsw.geometry.edge_spacing`), and their ratio ``shear_band_points``;
     - with ``conduction``: ``rise_error``, the temperature rise at the last saved time
-      against the axisymmetric continuum solution (:func:`jaxanm.fsw.axisymmetric.rise_error`,
+      against the axisymmetric continuum solution (:func:`jaxanm.fsw.continuum_error.rise_error`,
       about a second of 1-D solve): ``rel_l2``, ``mean_ratio``, ``max_abs_K``, ``t``; and
       ``rise_errors``, the same at every saved time from 0.01 s on (one solve,
-      :func:`jaxanm.fsw.axisymmetric.rise_errors`).
+      :func:`jaxanm.fsw.continuum_error.rise_errors`).
 
     How many points the shipped clouds put across the band and how far their rise is off:
     docs/physics/accuracy.md (from benchmarks/results/spatial_convergence.md).
     """
-    from jaxanm.fsw import axisymmetric, geometry
+    from jaxanm.fsw import continuum_error, geometry
     from jaxanm.fsw.scene import Scene
 
     scene = getattr(result, "scene", None)
@@ -113,12 +113,12 @@ def spatial_accuracy(result) -> dict | None:
         return None
     block: dict[str, Any] = {}
     if scene.has("viscous"):
-        width, spacing = axisymmetric.shear_band_width(scene), geometry.edge_spacing(scene.geometry)
+        width, spacing = continuum_error.shear_band_width(scene), geometry.edge_spacing(scene.geometry)
         block.update(shear_band_width_m=width, edge_spacing_m=spacing, shear_band_points=width / spacing)
     if scene.has("conduction") and len(np.asarray(result.t)):
-        errors = axisymmetric.rise_errors(result)
+        errors = continuum_error.rise_errors(result)
         last = errors[-1] if errors and errors[-1]["t"] == float(np.asarray(result.t)[-1]) else None
-        block["rise_error"] = last if last is not None else axisymmetric.rise_error(result)
+        block["rise_error"] = last if last is not None else continuum_error.rise_error(result)
         block["rise_errors"] = errors
     return block or None
 
