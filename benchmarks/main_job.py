@@ -115,7 +115,7 @@ def markdown(rows: dict, meta: dict) -> str:
         cmd = statistics.median(r["command_s"] for r in runs)
         last = runs[-1]
         rise_text = ", ".join(f"{e['rel_l2'] * 100:.2f} % at {e['t']:g} s" for e in last["rise_error"]) or "-"
-        osc = last["oscillation"] or {"windows": []}
+        osc = last["oscillation"] or {"windows": [], "max_speed": [], "max_T": []}  # None: too few samples
         osc_text = "; ".join(f"{w[0]:g}-{w[1]:g} s: {100 * sp:.2g} % / {100 * T:.2g} %" for w, sp, T
                              in zip(osc["windows"], osc["max_speed"], osc["max_T"])) or "-"
         lines.append(f"| {label} | {cmd:.1f} | {cmd / first:.2f} | {cmd / before:.2f} | "
