@@ -189,21 +189,24 @@ class TimeLoop:
         controller = self.controller
         attempt = controller.attempt(start.controller_state, k, start.t, start.x, start.params, self.span)
         while True:
-            x_new, r_norm, attempt, solved = self._solve(attempt, k)
+            x_new, r_norm, attempt, solved, dense = self._solve(attempt, k)
             verdict = controller.judge(start.controller_state, attempt, k, start.x, x_new, start.params,
                                        self.scale, self.span, solved.embedded)
             if verdict.retry is None:
                 break
             self.tally.refused()
             attempt = verdict.retry
-        self._accept(k, attempt.end, x_new, r_norm, verdict, solved.history)
+        self._accept(k, attempt.end, x_new, r_norm, verdict, solved.history, dense)
 
     def _solve(self, attempt: StepPlan, k: int):
         """The segments of ``attempt``, in order, retried as the controller says when a solve
         fails: ``(x at the end, |R|_inf there, the attempt as finally solved, the scheme's step
-        of the last segment)``, that step's ``history`` carried through the segments."""
+        of the last segment, the segments' dense output)``, that step's ``history`` carried
+        through the segments; the dense output is ``(segment, Interpolant)`` for each solved
+        segment when ``SaveAt.fn_ts`` asks for it, else empty."""
         x, history, pending = self.state.x, self.state.scheme_state, attempt.segments
         solved = None
+        dense = []
         while pending:
             segment = pending[0]
             try:
@@ -214,11 +217,13 @@ class TimeLoop:
                 self.tally.retried()
                 pending = attempt.segments
                 continue
-            x, r_norm = self._polished(x, solved.x, r_norm, segment, k)
-            history = solved.history
+            x_end, r_norm = self._polished(x, solved.x, r_norm, segment, k)
+            if self.saveat.fn_ts is not None:
+                dense.append((segment, self.scheme.interpolant(history, x, solved._replace(x=x_end), segment.h)))
+            x, history = x_end, solved.history
             pending = pending[1:]
         assert solved is not None  # an attempt has at least one segment
-        return x, r_norm, attempt, solved._replace(history=history)
+        return x, r_norm, attempt, solved._replace(history=history), dense
 
     def _solve_segment(self, x, history, segment: Segment, k: int) -> tuple[SchemeStep, float | None]:
         """One step of the time scheme over ``segment`` from ``x`` and the scheme's
@@ -305,15 +310,20 @@ class TimeLoop:
                 solver_state=solver.with_factorization(self.state.solver_state, polished.factorization))
         return polished.x, polished.residual_norm
 
-    def _accept(self, k: int, t_new: float, x_new, r_norm: float, verdict: Verdict, history) -> None:
+    def _accept(self, k: int, t_new: float, x_new, r_norm: float, verdict: Verdict, history, dense) -> None:
         """Hand an accepted step to the hooks and record it (signals wait meanwhile); a
         :class:`Remap` restarts the scheme's ``history`` (and the controller's, when the scheme
-        had one or the remap says so)."""
+        had one or the remap says so).  ``dense``: the step's segments and their dense output
+        (:meth:`_solve`), observed at ``SaveAt.fn_ts`` with the params they were solved with,
+        before the hook may change them."""
         o, s, guard = self.options, self.state, self.guard
         if guard is None:  # run() sets it around the steps
             raise RuntimeError("a step is accepted outside TimeLoop.run")
         guard.hold()  # from here to release(): signals wait, the step is recorded whole
         self.tally.accepted(r_norm, verdict.size)
+        kept = s.kept
+        if self.saveat.fn_ts is not None:
+            kept = kept.observing(self._observations(dense, t_new), s.params, self.saveat.fn)
         controller_state = verdict.state
         params_new = o.after_step(t_new, x_new, s.params)
         if isinstance(params_new, Remap):
@@ -325,7 +335,8 @@ class TimeLoop:
         if params_new is not s.params:
             params_new = on_device(params_new, s.params)
         saved = self.controller.saved(controller_state, k, t_new, self.span)
-        kept = s.kept.after(t_new, x_new, params_new, saved=saved, observe=self.saveat.fn)
+        kept = kept.after(t_new, x_new, params_new, saved=saved,
+                          observe=self.saveat.fn if self.saveat.fn_ts is None else None)
         self.state = s._replace(k=k, t=t_new, x=x_new, params=params_new, controller_state=controller_state,
                                 scheme_state=history, kept=kept)
         self.sensitivity.record(t_new, x_new, params_new)
@@ -335,6 +346,17 @@ class TimeLoop:
         self.bar.set_postfix(t=f"{t_new:.4g}", factorizations=self.stats.factorizations, refresh=False)
         if o.checkpoints.due(k):
             self._write_checkpoint()
+
+
+    def _observations(self, dense, t_new: float) -> list:
+        """``(t, state)`` at each ``SaveAt.fn_ts`` within the step's segments, from their dense
+        output (the last segment ends exactly at ``t_new``, as the step)."""
+        observations = []
+        for i, (segment, interpolant) in enumerate(dense):
+            end = t_new if i == len(dense) - 1 else segment.t + segment.h
+            for t in self.saveat.observed_within(segment.t, end):
+                observations.append((float(t), interpolant.at(min((t - segment.t) / segment.h, 1.0))))
+        return observations
 
 
 class _NoBar:

@@ -50,8 +50,8 @@ class Log(NamedTuple):
 class Kept(NamedTuple):
     """What a run keeps (:class:`~jaxanm.SaveAt`): ``ts`` and ``xs`` the saved times and
     states, ``ps`` the host params at them (``SaveAt(params=True)``, else None), ``observed``
-    the values of ``SaveAt.fn`` at t0 and after every step, ``{"t": Log, key: Log}`` (None
-    without ``fn``)."""
+    the values of ``SaveAt.fn`` at t0 and after every step (or at its ``fn_ts``),
+    ``{"t": Log, key: Log}`` (None without ``fn``)."""
 
     ts: Log
     xs: Log
@@ -73,11 +73,20 @@ class Kept(NamedTuple):
                 kept = kept._replace(ps=kept.ps.append(to_host(params)))  # numpy, as the user gave them
         return kept._replace(observed=_observed(observe, t, x, params, kept.observed))
 
+    def observing(self, observations, params, observe: Callable) -> Kept:
+        """``observe`` at each ``(time, state)`` of ``observations`` appended to what is kept
+        (a step's dense output at ``SaveAt.fn_ts``, with the params the step was solved with)."""
+        observed = self.observed
+        for t, x in observations:
+            observed = _observed(observe, t, x, params, observed)
+        return self._replace(observed=observed)
+
 
 def _observed(observe, t, x, params, observed):
-    """``observed`` with ``observe(t, x, params)`` appended (created at the first call)."""
+    """``observed`` with ``observe(t, x, params)`` appended (created at the first call);
+    unchanged without ``observe``."""
     if observe is None:
-        return None
+        return observed
     values = observe(t, x, params)
     if observed is None:
         observed = {"t": Log([], 0), **{key: Log([], 0) for key in values}}

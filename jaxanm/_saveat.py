@@ -38,6 +38,10 @@ class SaveAt:
     fn : callable ``(t, x, params) -> dict of arrays``, optional
         Observed at ``t0`` and after every accepted step (probe histories), returned in
         ``Solution.observed`` as ``{"t": (M,), key: (M, ...)}`` and kept in checkpoints.
+    fn_ts : sequence of float, optional
+        Observe ``fn`` at these times (and ``t0``) instead of after every step: between the
+        steps' ends by the time scheme's dense output (:meth:`jaxanm.TimeScheme.interpolant`),
+        so no step is shortened for them, and uniform samples come from steps of any size.
     params : bool
         Also keep ``params`` at the saved times (e.g. moving point clouds).
 
@@ -50,6 +54,7 @@ class SaveAt:
     ts: tuple | None = None
     steps: int | None = None
     fn: Callable | None = None
+    fn_ts: tuple | None = None
     params: bool = False
 
     def __post_init__(self):
@@ -63,8 +68,20 @@ class SaveAt:
             if ts.ndim != 1 or not np.all(np.isfinite(ts)):
                 raise InputError(f"SaveAt ts must be a sequence of finite times, got {self.ts!r}")
             object.__setattr__(self, "ts", tuple(float(t) for t in ts))
+        if self.fn_ts is not None:
+            fn_ts = np.atleast_1d(np.asarray(self.fn_ts, dtype=np.float64))
+            if fn_ts.ndim != 1 or not np.all(np.isfinite(fn_ts)) or np.any(np.diff(fn_ts) <= 0):
+                raise InputError(f"SaveAt fn_ts must be increasing finite times, got {self.fn_ts!r}")
+            if self.fn is None:
+                raise InputError("SaveAt fn_ts are the times fn is observed at: give fn too")
+            object.__setattr__(self, "fn_ts", tuple(float(t) for t in fn_ts))
         if self.fn is not None and not callable(self.fn):
             raise InputError(f"SaveAt fn must be a callable (t, x, params) -> dict, got {self.fn!r}")
+
+    def observed_within(self, t_start: float, t_end: float) -> np.ndarray:
+        """The ``fn_ts`` in ``(t_start, t_end]``: the times a step over that span observes."""
+        ts = np.asarray(self.fn_ts or (), dtype=np.float64)
+        return ts[(ts > t_start) & (ts <= t_end)]
 
     def fixed(self, t0: float, t1: float, dt: float) -> set:
         """The saved step numbers of fixed steps of ``dt`` from t0 to t1 (0 and the last always)."""

@@ -313,6 +313,10 @@ def test_bad_saveat_is_rejected():
         jaxanm.SaveAt(params="yes")
     with pytest.raises(jaxanm.InputError, match="not both"):
         jaxanm.SaveAt(ts=[0.1], steps=2)
+    with pytest.raises(jaxanm.InputError, match="give fn too"):
+        jaxanm.SaveAt(fn_ts=[0.1, 0.2])
+    with pytest.raises(jaxanm.InputError, match="fn_ts must be increasing finite times"):
+        jaxanm.SaveAt(fn=lambda t, x, p: {}, fn_ts=[0.2, 0.1])
 
 
 def test_save_at_and_params_history():

@@ -141,6 +141,50 @@ def test_observed_order_of_convergence(name, scheme):
     assert min(errors) > 1e-11
 
 
+def _dense_error(scheme, n):
+    """The largest error of the dense output between the steps' ends on the Riccati problem
+    (observed at fractions 0.37 and 0.87 of every step, the step's ends excluded)."""
+    F, u0, t1, _ = PROBLEMS["riccati"]
+    ts = (np.arange(2 * n) + 0.37) * t1 / (2 * n)
+    sol = jaxanm.integrate(F, u0, None, t0=0.0, t1=t1, dt=t1 / n, solver=NEWTON, scheme=scheme, jacobian="dense",
+                           saveat=jaxanm.SaveAt(ts=[], fn=lambda t, x, p: {"u": x[0]}, fn_ts=ts))
+    t, u = sol.observed["t"], sol.observed["u"]
+    np.testing.assert_array_equal(t[1:], ts)  # t0, then exactly the asked times
+    return np.max(np.abs(u[1:] - 1 / (1 + t[1:] ** 2)))
+
+
+@pytest.mark.parametrize("scheme", SCHEMES, ids=lambda s: s.name)
+def test_dense_output_keeps_the_schemes_order_between_steps(scheme):
+    """SaveAt(fn_ts=...) observes the scheme's dense output between the steps' ends: its
+    error against the closed form converges at the scheme's order (the line for implicit
+    Euler, BDF2's quadratic, the ESDIRKs' cubic Hermite, whose own O(h^4) error is not carried
+    to later steps); bounds as in the test above."""
+    ns = (32, 64, 128)
+    errors = [_dense_error(scheme, n) for n in ns]
+    slope = -np.polyfit(np.log(ns), np.log(errors), 1)[0]
+    assert scheme.order - 0.2 < slope < scheme.order + 0.5, (errors, slope)
+
+
+def test_dense_output_under_a_controller_observes_the_asked_times():
+    """Observation times do not change the controller's steps, and the values between the
+    steps' ends are as accurate as those at the ends (ESDIRK3 on the Riccati problem: at most
+    twice the largest error at the steps' ends, i.e. the interpolant adds less than the
+    accumulated time error)."""
+    F, u0, t1, _ = PROBLEMS["riccati"]
+    ts = np.linspace(0.01, t1, 200)
+    controller = jaxanm.StepController(rtol=1e-6, atol=1e-6)
+    run = dict(t0=0.0, t1=t1, dt=1e-3, solver=NEWTON, scheme=jaxanm.ESDIRK(order=3), jacobian="dense",
+               controller=controller)
+    steps = jaxanm.integrate(F, u0, None, saveat=jaxanm.SaveAt(steps=1), **run)
+    dense = jaxanm.integrate(F, u0, None, saveat=jaxanm.SaveAt(ts=[], fn=lambda t, x, p: {"u": x[0]}, fn_ts=ts),
+                             **run)
+    assert dense.stats.time_steps == steps.stats.time_steps < len(ts) / 2
+    t, u = dense.observed["t"][1:], dense.observed["u"][1:]
+    np.testing.assert_array_equal(t, ts)
+    at_steps = np.max(np.abs(steps.xs[:, 0] - 1 / (1 + steps.ts**2)))
+    assert np.max(np.abs(u - 1 / (1 + t**2))) < 2 * at_steps
+
+
 # -- L-stability on a stiff problem ---------------------------------------------------------------
 
 def _prothero_robinson(u, u_dot, t, p):

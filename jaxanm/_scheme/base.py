@@ -47,6 +47,15 @@ class SchemeStep(NamedTuple):
     embedded: np.ndarray | None = None
 
 
+class Interpolant(NamedTuple):
+    """A step's dense output: ``at(theta)``, the state at the fraction ``theta`` in [0, 1] of
+    the step (the step's own states at 0 and 1), ``order`` the global order of its values
+    between the steps' ends (at most the scheme's)."""
+
+    at: Callable[[float], np.ndarray]
+    order: int
+
+
 class TimeScheme(abc.ABC):
     """Base class of the time schemes :func:`jaxanm.integrate` accepts (its ``scheme``).
 
@@ -63,7 +72,8 @@ class TimeScheme(abc.ABC):
     ``1 / (q + 1)``), ``estimate_history`` (the accepted steps before the current one that
     the estimate reads, in the quantities the controller measures) and ``max_growth`` (the
     largest ratio of a step to the one before that keeps the scheme stable; the step
-    controller caps its growth there).
+    controller caps its growth there).  Between the steps' ends, :meth:`interpolant` gives
+    the state (what :class:`~jaxanm.SaveAt`'s ``fn_ts`` observe).
     """
 
     name: str
@@ -84,6 +94,12 @@ class TimeScheme(abc.ABC):
         step's end and start, ``y_embedded`` the measured embedded solution (or None),
         ``past`` the ``(y, size)`` of the accepted steps before, newest first (at most
         ``estimate_history``), ``h`` the step's size."""
+
+    def interpolant(self, history, x: np.ndarray, step: SchemeStep, h: float) -> "Interpolant":
+        """The dense output of ``step`` (from ``x``, the scheme's ``history`` before it, over
+        ``h``): the state at any fraction of the step (:class:`Interpolant`).  By default the
+        line through the step's two states, of first order (implicit Euler's own)."""
+        return Interpolant(lambda theta: x + theta * (step.x - x), order=1)
 
     def restart(self, history):
         """The history after the state was remapped (:class:`~jaxanm.Remap`): the past states

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .base import SchemeStep, TimeScheme, register
+from .base import Interpolant, SchemeStep, TimeScheme, register
 
 
 def bdf2_stage(x, x_prev, h: float, h_prev: float):
@@ -76,6 +76,21 @@ class BDF2(TimeScheme):
         z, gamma_h = bdf2_stage(x, x_prev, h, h_prev)
         start = x + (h / h_prev) * (x - x_prev)  # the line through the last two states: O(h^2) off
         return SchemeStep(solve(z, t + h, gamma_h, last=True, start=start), (x, h))
+
+    def interpolant(self, history, x, step, h) -> Interpolant:
+        """The quadratic through the previous state, ``x`` and the step's end (BDF2's own
+        interpolating polynomial; second order); the line after a first step."""
+        if history is None:
+            return super().interpolant(history, x, step, h)
+        x_prev, h_prev = history
+        x_new = step.x
+
+        def at(theta):
+            s = theta * h  # time from the step's start; Lagrange weights of the nodes -h_prev, 0, h
+            return (s * (s - h) / (h_prev * (h_prev + h)) * x_prev - (s + h_prev) * (s - h) / (h_prev * h) * x
+                    + (s + h_prev) * s / ((h + h_prev) * h) * x_new)
+
+        return Interpolant(at, order=2)
 
     def local_error(self, y_new, y_embedded, y_now, past, h):
         """The predictor's estimate (None without two earlier steps)."""

@@ -42,7 +42,7 @@ import dataclasses
 import numpy as np
 
 from .._checks import integer
-from .base import SchemeStep, TimeScheme, register
+from .base import Interpolant, SchemeStep, TimeScheme, register
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -133,6 +133,21 @@ def dirk_step(tableau: Tableau, x, t: float, h: float, slope, solve):
     return y, slopes[-1], embedded
 
 
+def hermite(x0, dx0, x1, dx1, order: int) -> Interpolant:
+    """The cubic with values ``x0``, ``x1`` and derivatives (in the step's fraction) ``dx0``,
+    ``dx1`` at 0 and 1; without ``dx0`` (None) the quadratic with ``x0``, ``x1`` and ``dx1``.
+    ``order``: the order its values are given (:class:`~jaxanm.TimeScheme.interpolant`)."""
+    delta = x1 - x0
+    if dx0 is None:
+        return Interpolant(lambda th: x0 + th * (2 * delta - dx1) + th * th * (dx1 - delta), order=order)
+
+    def at(th):
+        return (x0 + th * dx0 + th * th * (3 * delta - 2 * dx0 - dx1)
+                + th * th * th * (dx0 + dx1 - 2 * delta))
+
+    return Interpolant(at, order=order)
+
+
 @dataclasses.dataclass(frozen=True)
 class ESDIRK(TimeScheme):
     """Kværnø's L-stable, stiffly accurate ESDIRK of ``order`` 3 (name ``"esdirk3"``: four stages,
@@ -166,6 +181,16 @@ class ESDIRK(TimeScheme):
             return SchemeStep(y, slope)
         y, slope, embedded = dirk_step(self.tableau, x, t, h, history, solve)
         return SchemeStep(y, slope, embedded)
+
+    def interpolant(self, history, x, step, h) -> Interpolant:
+        """Cubic Hermite from the states and slopes at the step's ends (the slopes the stages
+        carry: ``history`` at the start, ``step.history`` at the end), as diffrax interpolates
+        its ESDIRKs: its own error is ``O(h^4)`` and is not carried to later steps, so the
+        values keep the scheme's order.  The start's step has no slope at its start: the
+        quadratic with the end's slope, ``O(h^3)`` on that one step."""
+        if history is None:
+            return hermite(x, None, step.x, h * step.history, order=min(self.order, 3))
+        return hermite(x, h * history, step.x, h * step.history, order=self.order)
 
     def local_error(self, y_new, y_embedded, y_now, past, h):
         """The difference of the solution and the embedded one (None on the start's step)."""
