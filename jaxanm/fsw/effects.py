@@ -151,6 +151,11 @@ def _lagrangian_check(scene) -> list:
                         "discretisation and the residual has no semi-discrete form (a multistep or Runge-Kutta "
                         "scheme would restart at every step); use time.scheme = 'euler', or 'tracers' instead of "
                         "'lagrangian'"))
+    if scene.time.probe_dt > 0:
+        refused.append(("time.probe_dt", scene.time.probe_dt,
+                        "is invalid with the 'lagrangian' effect: its probes are material points, recorded where "
+                        "each step takes them, and a step's dense output lives on the cloud the step started on; "
+                        "use time.probe_dt = 0 (at every step), or 'tracers' instead of 'lagrangian'"))
     return refused
 
 

@@ -7,9 +7,10 @@ coloured sparse Jacobian as the implicit-Euler solvers) and returns an
 same files as ``jaxanm run --out`` and errors are measured by the same
 :func:`jaxanm.fsw.compare.differences`.  What differs from :func:`jaxanm.fsw.simulate.run`:
 
-- IDA's outputs are the scene's save times t > 0 (``time.save`` and ``t_end``), where it ends
-  a step exactly (no interpolation); the probe history holds t = 0 and those times only, not
-  every internal step.  Compare it with other runs at those times (``time.save``).
+- IDA's outputs are the scene's save times t > 0 (``time.save`` and ``t_end``) and its probe
+  times (``time.probe_dt``), where it ends a step exactly (no interpolation); the probe
+  history holds t = 0 and those times only, not every internal step.  Compare it with other
+  runs at those times (``time.save``).
 - The registration points are the scene's probe positions, as in
   :func:`~jaxanm.fsw.simulate.run` on fixed points (:class:`~jaxanm.fsw.record.ProbeSites`).
 - No tracers: advecting them needs the flow between the outputs (``tracers`` is None; the
@@ -65,12 +66,14 @@ def run_ida(scene: Scene, rtol: float = IDA_DEFAULTS["rtol"], atol: float | None
                                 "effects (add 'tracers' for the mixing picture) or use an implicit-Euler solver")
     atol = rtol if atol is None else atol
     cloud, st, model, params, x0 = discretise(scene)
-    times = np.array([t for t in scene.time.save_times if t > 0], dtype=np.float64)
+    times = np.array(sorted({*(t for t in scene.time.save_times if t > 0), *scene.time.probe_times}),
+                     dtype=np.float64)
     with jaxanm.float64():
         sol = integrate_ida(model.residual, x0, params, t0=0.0, t_out=times, rtol=float(rtol), atol=float(atol),
                             max_order=int(max_order), scale=model.scale(), sparsity=model.sparsity)
-    # the same records as a run on fixed points, from IDA's states at the save times
-    recorder = Recorder(scene, model, st, x0, frozenset(float(t) for t in sol.ts), tracers=False)
+    # the same records as a run on fixed points, from IDA's states at its output times
+    saved = frozenset(float(t) for t in sol.ts if t in scene.time.save_times)
+    recorder = Recorder(scene, model, st, x0, saved, tracers=False)
     for t, x in zip(sol.ts, sol.xs):
         recorder.record_state(t, x, st)
     solver = {"rtol": float(rtol), "atol": float(atol), "max_order": int(max_order)}

@@ -278,7 +278,7 @@ class RunRecorder(Recorder):
         if self.tracers is not None:
             self.tracers = self._advected(self.tracers, x, dt)
         if not model.effects.lagrangian:
-            self.record_state(t_new, x, params["st"])
+            self.record_state(t_new, x, params["st"], probes=scene.time.probe_dt == 0)
             return params
         self.t = float(t_new)
         values = model.values(x, params["st"])

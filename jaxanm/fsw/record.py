@@ -206,18 +206,31 @@ class Recorder:
         for name in self.CHECKPOINTED:
             setattr(self, name, stored[name])
 
-    def record_state(self, t: float, x, stencils) -> None:
-        """Record the unknowns ``x`` at time ``t`` on the fixed points (no motion): the probes,
-        and at a save time the fields and sections.  A run on fixed points (its step hook) and
-        IDA (its outputs) pass their states through here in time order; ``stencils``: the
-        cloud's, as in the model's parameters."""
+    def record_state(self, t: float, x, stencils, probes: bool = True) -> None:
+        """Record the unknowns ``x`` at time ``t`` on the fixed points (no motion): the probes
+        (``probes=False``: not at this time, a run whose ``time.probe_dt`` samples them by
+        :meth:`observe_probes`), and at a save time the fields and sections.  A run on fixed
+        points (its step hook) and IDA (its outputs) pass their states through here in time
+        order; ``stencils``: the cloud's, as in the model's parameters."""
         self.t = float(t)
         x = np.asarray(x)
         full = self.model.full_values(self.model.values(x, stencils))
         save = self.t in self.save_times
         if save:
             self._save_sections(x)
-        self._record(self.t, self.points, full, save, self._at_probes(self.points, full, x))
+        self._record(self.t, self.points, full, save, self._at_probes(self.points, full, x) if probes else None)
+
+    def observe_probes(self, t: float, x, params) -> dict:
+        """The probes' ``{"u", "v", "T": (P,)}`` of the unknowns ``x`` at ``t``, recorded in the
+        probe histories after t = 0 (which the recorder records itself): the
+        :class:`jaxanm.SaveAt` ``fn`` of a scene with ``time.probe_dt``, observed at its
+        :attr:`~jaxanm.fsw.scene_sections.Time.probe_times` on the scheme's dense output."""
+        assert self.probe_sites is not None  # the scene refuses probe_dt with moving points
+        at = self.probe_sites.values(self.model, np.asarray(x))
+        if t > self.probes["t"][-1]:
+            self._append_probes(float(t), {"x": self.probe_sites.positions[:, 0],
+                                           "y": self.probe_sites.positions[:, 1], **at})
+        return at
 
     def _at_probes(self, positions: np.ndarray, values: dict, state=None) -> dict:
         """``{"x", "y", "u", "v", "T": (P,)}`` at the probes in one step.
@@ -238,17 +251,13 @@ class Recorder:
 
         ``positions`` and ``values``: the material points and the fields there; ``probes``:
         the probes' record of this step (:meth:`_at_probes`; by default that of followed
-        probes, from ``positions`` and ``values``: fixed ones need the state).
+        probes, from ``positions`` and ``values``; fixed ones need the state, and without it
+        none is recorded at this step).
         """
-        if probes is None:
-            if self.probe_sites is not None:
-                raise ValueError("fixed probes are MLS values of the state: pass probes=self._at_probes(..., state)")
+        if probes is None and self.probe_sites is None:
             probes = self._at_probes(positions, values)
-        self.probes["t"].append(t)
-        for j, name in enumerate(p.name for p in self.scene.probes):
-            rec = self.probes[name]
-            for k in "xyuvT":
-                rec[k].append(probes[k][j])
+        if probes is not None:
+            self._append_probes(t, probes)
         if save:
             self.saved["t"].append(t)
             self.saved["points"].append(positions.copy())
@@ -257,6 +266,14 @@ class Recorder:
                 self.saved[k].append(values[k].copy())
             if self.tracers is not None:
                 self.tracer_saves.append(self.tracers.copy())
+
+    def _append_probes(self, t: float, probes: dict) -> None:
+        """One sample of every probe's history (``probes``: as :meth:`_at_probes` gives)."""
+        self.probes["t"].append(t)
+        for j, name in enumerate(p.name for p in self.scene.probes):
+            rec = self.probes[name]
+            for k in "xyuvT":
+                rec[k].append(probes[k][j])
 
     def _save_sections(self, x) -> None:
         """MLS values along the sections, from unknowns ``x`` on the cloud they were solved on."""

@@ -405,6 +405,12 @@ class Time(_Section):
     motion (:func:`jaxanm.fsw.lagrangian.motion_dt_max`), and ``dt_max > 0`` bounds them
     (0: no bound of the scene's own).  Both tolerances are finite, in ``[0, 1)`` with
     ``adaptive`` and not both 0 (always ``>= 0``; unused without ``adaptive``).
+
+    ``probe_dt > 0`` samples the probes every ``probe_dt`` (and at ``t_end``) from the time
+    scheme's dense output between the steps' ends (:attr:`jaxanm.SaveAt.fn_ts`), so their
+    histories do not depend on the steps the controller takes; 0: at every step.  It needs
+    fixed points (a Lagrangian scene's probes are material points, recorded where each step
+    takes them).
     """
 
     _name = "time"
@@ -416,6 +422,7 @@ class Time(_Section):
     rtol: float = 0.0
     atol: float = 1e-5
     dt_max: float = 0.0
+    probe_dt: float = 0.0
 
     def _validate(self):
         check("time.scheme", self.scheme, self.scheme in scheme_names(),
@@ -438,6 +445,12 @@ class Time(_Section):
         check("time.dt", self.dt, self.dt * MAX_STEPS >= self.t_end,
                f"time.t_end / time.dt asks for more than {MAX_STEPS} steps: use dt >= "
                f"{self.t_end / MAX_STEPS:.3g} or a shorter t_end")
+        check("time.probe_dt", self.probe_dt, 0 <= self.probe_dt <= self.t_end,
+               f"must be >= 0 and <= time.t_end = {self.t_end} (s): the probes' sampling interval, 0 to record "
+               "them at every step")
+        check("time.probe_dt", self.probe_dt, self.probe_dt == 0 or self.probe_dt * MAX_STEPS >= self.t_end,
+               f"time.t_end / time.probe_dt asks for more than {MAX_STEPS} probe samples: use probe_dt >= "
+               f"{self.t_end / MAX_STEPS:.3g}")
         for i, s in enumerate(self.save):
             check(f"time.save[{i}]", s, s >= 0, "save times must be >= 0")
 
@@ -445,6 +458,16 @@ class Time(_Section):
     def save_times(self) -> tuple:
         """Sorted save times within [0, t_end], with 0 and t_end included."""
         return tuple(sorted({0.0, self.t_end, *(s for s in self.save if s <= self.t_end)}))
+
+    @property
+    def probe_times(self) -> tuple:
+        """The times the probes are sampled at after t = 0 with ``probe_dt > 0`` (multiples of
+        it, and ``t_end``); empty with ``probe_dt = 0`` (at every step)."""
+        if self.probe_dt == 0:
+            return ()
+        count = math.floor(self.t_end / self.probe_dt * (1 + 1e-12))
+        return tuple(sorted({*(k * self.probe_dt for k in range(1, count + 1) if k * self.probe_dt < self.t_end),
+                             self.t_end}))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -17,6 +17,7 @@ is checked on the FSW rows in ``tests/test_ida.py``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from typing import Callable
@@ -151,6 +152,8 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
     saveat = jaxanm.SaveAt(ts=tuple(t for t in tm.save_times if t > 0))
     save_times = saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None)
     recorder = RunRecorder(scene, model, stencils, x0, save_times, initial=initial, start=start)
+    if tm.probe_dt > 0:  # the probes sampled on the scheme's dense output (Time.probe_times)
+        saveat = dataclasses.replace(saveat, fn=recorder.observe_probes, fn_ts=tm.probe_times)
     latest = {"stats": jaxanm.Stats()}
     # a temperature outside the range the continuum keeps it in ends the run, named
     guard = TemperatureGuard.for_model(model, params, x0)
