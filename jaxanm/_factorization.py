@@ -19,20 +19,25 @@ import scipy.sparse.linalg
 from ._extras import require
 from .errors import SingularMatrixError
 
-# Why these SuperLU settings (the measurements: benchmarks/results/lu_orderings.md and
-# docs/notes/sparse_lu_at_scale.md).  The FSW tangents have a structurally symmetric pattern
-# whose diagonal entries make acceptable pivots, so minimum degree on A + A^T in symmetric mode,
-# keeping the diagonal pivot unless it is below DIAG_PIVOT_THRESH of its column (threshold
-# partial pivoting, as UMFPACK's default), fills least and factorises fastest of SuperLU's
-# orderings there, with residuals as small as partial pivoting's; an exactly singular factor
-# raises.  On finer clouds the eliminated diagonals fall below the threshold and each pivot
-# taken off the diagonal spoils the symmetric ordering, so above SYMMETRIC_MAX_UNKNOWNS (between
-# the sizes where symmetric mode was measured to win and to lose) the unknowns are ordered by
-# nested dissection, the standard fill-reducing ordering of 2D meshes (a point cloud with MLS
-# stencils is one): METIS orders the graph of A + A^T and SuperLU factorises the permuted matrix
-# in symmetric mode with the smaller threshold LARGE_DIAG_PIVOT_THRESH (HSL MA57's default: a
-# larger one keeps fewer diagonal pivots and fills more, a smaller one lets the elements grow).
-SYMMETRIC_MAX_UNKNOWNS = 5000
+# Why these SuperLU settings (the measurements: benchmarks/results/lu_orderings.md,
+# benchmarks/results/lu_at_size.md and docs/notes/sparse_lu_at_scale.md).  The FSW tangents
+# have a structurally symmetric pattern whose diagonal entries make acceptable pivots, so
+# minimum degree on A + A^T in symmetric mode, keeping the diagonal pivot unless it is below
+# DIAG_PIVOT_THRESH of its column (threshold partial pivoting, as UMFPACK's default), fills
+# little and factorises fastest of SuperLU's orderings, with residuals as small as partial
+# pivoting's; an exactly singular factor raises.  Where elimination pushes diagonals below the
+# threshold, each pivot taken off the diagonal spoils the symmetric ordering and the fill
+# grows: so above GUARDED_ABOVE unknowns a pattern whose factors took more than
+# OFF_DIAGONAL_PIVOTS_MAX of their pivots off the diagonal is ordered by nested dissection from
+# then on, and above SYMMETRIC_MAX_UNKNOWNS every matrix is (where its smaller fill catches up
+# with the minimum degree's faster supernodes).  Nested dissection is the standard
+# fill-reducing ordering of 2D meshes (a point cloud with MLS stencils is one): METIS orders
+# the graph of A + A^T and SuperLU factorises the permuted matrix in symmetric mode with the
+# smaller threshold LARGE_DIAG_PIVOT_THRESH (HSL MA57's default: a larger one keeps fewer
+# diagonal pivots and fills more, a smaller one lets the elements grow).
+SYMMETRIC_MAX_UNKNOWNS = 20000
+GUARDED_ABOVE = 5000
+OFF_DIAGONAL_PIVOTS_MAX = 0.01
 PERMC_SPEC = "MMD_AT_PLUS_A"
 DIAG_PIVOT_THRESH = 0.1
 SUPERLU_OPTIONS = {"SymmetricMode": True}
@@ -43,12 +48,33 @@ def sparse_lu(matrix):
     """SuperLU factors of a square sparse matrix, an object with ``solve(b)`` (``b`` of shape
     (n,) or (n, k)) and the factors' ``L``, ``U``: up to :data:`SYMMETRIC_MAX_UNKNOWNS` unknowns,
     ordering :data:`PERMC_SPEC` with threshold :data:`DIAG_PIVOT_THRESH` and options
-    :data:`SUPERLU_OPTIONS`; above, a nested-dissection ordering (:class:`NestedDissectionLU`)."""
+    :data:`SUPERLU_OPTIONS`; above, or for a pattern above :data:`GUARDED_ABOVE` whose factors
+    took more than :data:`OFF_DIAGONAL_PIVOTS_MAX` of their pivots off the diagonal, a
+    nested-dissection ordering (:class:`NestedDissectionLU`)."""
     matrix = scipy.sparse.csc_matrix(matrix)
-    if matrix.shape[0] > SYMMETRIC_MAX_UNKNOWNS:
+    n = matrix.shape[0]
+    guarded = n > GUARDED_ABOVE
+    if n > SYMMETRIC_MAX_UNKNOWNS or (guarded and _known(_OFF_DIAGONAL, matrix.indptr, matrix.indices)):
         return NestedDissectionLU(matrix)
-    return scipy.sparse.linalg.splu(matrix, permc_spec=PERMC_SPEC,
-                                    diag_pivot_thresh=DIAG_PIVOT_THRESH, options=dict(SUPERLU_OPTIONS))
+    lu = scipy.sparse.linalg.splu(matrix, permc_spec=PERMC_SPEC,
+                                  diag_pivot_thresh=DIAG_PIVOT_THRESH, options=dict(SUPERLU_OPTIONS))
+    if guarded and np.count_nonzero(lu.perm_r != lu.perm_c) > OFF_DIAGONAL_PIVOTS_MAX * n:
+        _remember(_OFF_DIAGONAL, (matrix.indptr.copy(), matrix.indices.copy()))
+    return lu
+
+
+def _known(patterns: list, indptr, indices):
+    """The entry of ``patterns`` (``(indptr, indices, ...)`` tuples) with this pattern, else None."""
+    for entry in patterns:
+        if np.array_equal(entry[0], indptr) and np.array_equal(entry[1], indices):
+            return entry
+    return None
+
+
+def _remember(patterns: list, entry: tuple) -> None:
+    """Keep ``entry`` as the newest of ``patterns``, at most :data:`ORDERINGS_KEPT` of them."""
+    patterns.append(entry)
+    del patterns[:-ORDERINGS_KEPT]
 
 
 def nested_dissection(matrix) -> np.ndarray:
@@ -62,16 +88,15 @@ def nested_dissection(matrix) -> np.ndarray:
     graph.setdiag(0)
     graph.eliminate_zeros()
     graph.sort_indices()
-    for indptr, indices, perm in _ORDERINGS:  # a pattern met again: its ordering (METIS is deterministic)
-        if np.array_equal(indptr, graph.indptr) and np.array_equal(indices, graph.indices):
-            return perm
+    known = _known(_ORDERINGS, graph.indptr, graph.indices)
+    if known is not None:  # a pattern met again: its ordering (METIS is deterministic)
+        return known[2]
     # METIS_NodeND: row i of the permuted matrix is row perm[i] of the original (its iperm,
     # the other array returned, is the inverse: gathering by it fills far more)
     perm, _ = pymetis.nested_dissection(pymetis.CSRAdjacency(graph.indptr, graph.indices))
     perm = np.asarray(perm, dtype=np.int64)
     perm.setflags(write=False)
-    _ORDERINGS.append((graph.indptr, graph.indices, perm))
-    del _ORDERINGS[:-ORDERINGS_KEPT]
+    _remember(_ORDERINGS, (graph.indptr, graph.indices, perm))
     return perm
 
 
@@ -80,6 +105,7 @@ ORDERINGS_KEPT = 4
 following factorise matrices of one pattern over and over, and METIS takes about as long as
 SuperLU's numeric factorisation (the 2D Bratu's bordered matrix at 250,000 unknowns)."""
 _ORDERINGS: list = []  # (indptr, indices, perm) of the graphs ordered last, the newest last
+_OFF_DIAGONAL: list = []  # (indptr, indices) of matrices whose symmetric-mode factors left the diagonal
 
 
 class NestedDissectionLU:

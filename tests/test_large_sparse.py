@@ -28,7 +28,7 @@ def test_an_ordering_is_made_once_per_pattern(monkeypatch):
     original = pymetis.nested_dissection
     monkeypatch.setattr(pymetis, "nested_dissection", lambda *a, **k: calls.append(1) or original(*a, **k))
     monkeypatch.setattr(_factorization, "_ORDERINGS", [])
-    m = 75  # 5625 unknowns, above SYMMETRIC_MAX_UNKNOWNS
+    m = 142  # 20164 unknowns, above SYMMETRIC_MAX_UNKNOWNS
     rhs = np.random.default_rng(0).standard_normal(m * m)
     stats = jaxanm.Stats()
     for shift, count in ((1.0, 1), (2.0, 1), (3.0, 2)):
@@ -39,6 +39,29 @@ def test_an_ordering_is_made_once_per_pattern(monkeypatch):
         x = jaxanm.factorize(matrix, stats).solve(rhs)
         assert len(calls) == count
         np.testing.assert_allclose(x, scipy.sparse.linalg.spsolve(matrix, rhs), rtol=1e-10, atol=0)
+
+
+def test_a_pattern_pivoting_off_the_diagonal_is_ordered_by_nested_dissection(monkeypatch):
+    """Between GUARDED_ABOVE and SYMMETRIC_MAX_UNKNOWNS the symmetric mode is tried first; a
+    pattern whose factors took more than OFF_DIAGONAL_PIVOTS_MAX of their pivots off the
+    diagonal (here a third of the diagonal is zero: those pivots cannot stay on it) is ordered
+    by nested dissection from its next factorisation on, and one that keeps its diagonal
+    pivots (the shifted Laplacian) keeps the symmetric mode; every solve matches a direct one."""
+    pytest.importorskip("pymetis")
+    monkeypatch.setattr(_factorization, "_OFF_DIAGONAL", [])
+    m = 75  # 5625 unknowns: between the two bounds
+    assert _factorization.GUARDED_ABOVE < m * m <= _factorization.SYMMETRIC_MAX_UNKNOWNS
+    rhs = np.random.default_rng(0).standard_normal(m * m)
+    zero_diagonal = np.arange(m * m) % 3 == 0
+    for matrix, symmetric_after in ((_laplacian(m, 1.0), True),
+                                    ((_laplacian(m, 1.0) - scipy.sparse.diags(np.where(zero_diagonal, -5.0, 0.0)))
+                                     .tocsc(), False)):
+        kinds = []
+        for _ in range(2):
+            lu = _factorization.sparse_lu(matrix)
+            kinds.append(isinstance(lu, _factorization.NestedDissectionLU))
+            np.testing.assert_allclose(lu.solve(rhs), scipy.sparse.linalg.spsolve(matrix, rhs), rtol=1e-8, atol=0)
+        assert kinds == [False, not symmetric_after]
 
 
 LAM_CONTINUUM = 6.808124
