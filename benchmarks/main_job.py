@@ -49,10 +49,6 @@ ENTRIES = [
     (BEFORE, True, ["fsw"]),
     ("fsw (main job, ANM)", False, ["fsw"]),
     ("fsw, modified Newton", False, ["fsw", "--solver", "mnewton"]),
-    # the cheapest cloud of main_job_clouds.md within 1 % at 0.1, 0.3 and 0.7 s, with ESDIRK3
-    ("fsw, 3111-point cloud, ESDIRK3 (candidate)", False,
-     ["fsw", "--set", "time.scheme=esdirk3", "--set", "time.atol=3e-4", "--set", "geometry.dr=6e-5",
-      "--set", "geometry.band=3e-4", "--set", "geometry.grading=1.15", "--set", "geometry.dr_far=4.5e-4"]),
 ]
 
 
