@@ -80,9 +80,10 @@ def _remember(patterns: list, entry: tuple) -> None:
 def nested_dissection(matrix) -> np.ndarray:
     """METIS nested-dissection ordering of the graph of ``matrix + matrix^T``: ``perm`` such
     that ``matrix[perm][:, perm]`` has little fill in its LU factors."""
-    # imported here: only matrices above SYMMETRIC_MAX_UNKNOWNS unknowns need it (the metis extra)
+    # imported here: only large matrices need it (the metis extra)
     pymetis = require("pymetis", "metis",
-                      f"the nested-dissection LU of matrices above {SYMMETRIC_MAX_UNKNOWNS} unknowns")
+                      f"the nested-dissection LU of matrices above {SYMMETRIC_MAX_UNKNOWNS} unknowns (and above "
+                      f"{GUARDED_ABOVE} whose pivots leave the diagonal)")
 
     graph = scipy.sparse.csr_matrix(abs(matrix) + abs(matrix.T))
     graph.setdiag(0)
