@@ -85,6 +85,18 @@ def _host_state(scene: Scene, recorder: RunRecorder, settings: dict):
     return get, set_
 
 
+def _recording(scene: Scene, model: Model, stencils, x0, controller, initial, start):
+    """The run's :class:`jaxanm.SaveAt` (the scene's save times; with ``time.probe_dt`` the
+    probes observed on the scheme's dense output at its probe times) and its recorder."""
+    tm = scene.time
+    saveat = jaxanm.SaveAt(ts=tuple(t for t in tm.save_times if t > 0))
+    save_times = saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None)
+    recorder = RunRecorder(scene, model, stencils, x0, save_times, initial=initial, start=start)
+    if tm.probe_dt > 0:
+        saveat = dataclasses.replace(saveat, fn=recorder.observe_probes, fn_ts=tm.probe_times)
+    return saveat, recorder
+
+
 def scene_differences(stored, scene: Scene) -> str:
     """Comma-separated dotted keys whose values differ between a stored scene dict and ``scene``."""
     if not isinstance(stored, dict):
@@ -149,11 +161,7 @@ def run(scene: Scene, solver=None, progress: bool = False, callback: Callable | 
         initial = model.values(x0, stencils)
     tm = scene.time
     controller = step_controller(scene, model)
-    saveat = jaxanm.SaveAt(ts=tuple(t for t in tm.save_times if t > 0))
-    save_times = saveat.times(0.0, tm.t_end, tm.dt, adaptive=controller is not None)
-    recorder = RunRecorder(scene, model, stencils, x0, save_times, initial=initial, start=start)
-    if tm.probe_dt > 0:  # the probes sampled on the scheme's dense output (Time.probe_times)
-        saveat = dataclasses.replace(saveat, fn=recorder.observe_probes, fn_ts=tm.probe_times)
+    saveat, recorder = _recording(scene, model, stencils, x0, controller, initial, start)
     latest = {"stats": jaxanm.Stats()}
     # a temperature outside the range the continuum keeps it in ends the run, named
     guard = TemperatureGuard.for_model(model, params, x0)
