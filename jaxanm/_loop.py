@@ -321,9 +321,9 @@ class TimeLoop:
             raise RuntimeError("a step is accepted outside TimeLoop.run")
         guard.hold()  # from here to release(): signals wait, the step is recorded whole
         self.tally.accepted(r_norm, verdict.size)
-        kept = s.kept
-        if self.saveat.fn_ts is not None:
-            kept = kept.observing(self._observations(dense, t_new), s.params, self.saveat.fn)
+        kept, observe = s.kept, self.saveat.fn
+        if self.saveat.fn_ts is not None and observe is not None:  # SaveAt refuses fn_ts without fn
+            kept = kept.observing(self._observations(dense, t_new), s.params, observe)
         controller_state = verdict.state
         params_new = o.after_step(t_new, x_new, s.params)
         if isinstance(params_new, Remap):
