@@ -214,3 +214,30 @@ def test_fsw_anm_run_resumes_bit_identically(tmp_path):
             for k in "uvT":
                 np.testing.assert_array_equal(res.sections[name][k], ref.sections[name][k])
     assert res.stats.resumes == 1 and res.stats.factorizations == ref.stats.factorizations
+
+
+def test_probes_sampled_on_the_dense_output_resume_bit_identically(tmp_path):
+    """A fixed-point scene whose probes are sampled every time.probe_dt on ESDIRK3's dense
+    output (steps of 0.05 s, samples every 0.02 s): the histories are at exactly those times,
+    and a run interrupted after 3 of its steps and resumed records the same histories bit for
+    bit as an uninterrupted one (the loop's observations and the recorder's are checkpointed
+    together)."""
+    from jaxanm.fsw.scene import load_scene
+    from jaxanm.fsw.simulate import run
+
+    scene = load_scene("conduction_small").with_overrides(
+        {"time.scheme": "esdirk3", "time.t_end": "0.3", "time.save": "0.1", "time.probe_dt": "0.02"})
+    ref = run(scene)
+    np.testing.assert_allclose(ref.probes["t"], np.arange(16) * 0.02, rtol=0, atol=1e-15)
+
+    def stop(t, stats):
+        if stats.time_steps == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run(scene, callback=stop, checkpoint=tmp_path / "c.pkl", checkpoint_every=2)
+    res = run(scene, checkpoint=tmp_path / "c.pkl", resume=True)
+    np.testing.assert_array_equal(res.probes["t"], ref.probes["t"])
+    for k in "uvT":
+        np.testing.assert_array_equal(res.probes["1"][k], ref.probes["1"][k])
+    np.testing.assert_array_equal(res.T, ref.T)

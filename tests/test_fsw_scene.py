@@ -234,6 +234,10 @@ def test_tolerances_of_a_fixed_step_scene_are_not_used():
     ("fsw_paper", {"time.scheme": "bdf2"}, "is invalid with the 'lagrangian' effect"),
     ("fsw_small", {"time.scheme": "bdf3"}, "must be one of euler, bdf2, esdirk3, esdirk4"),
     ("fsw_small", {"time.dt_max": -1e-3}, "time.dt_max"),
+    # a Lagrangian scene's probes are material points, recorded where each step takes them
+    ("fsw_paper", {"time.probe_dt": 1e-3}, "time.probe_dt"),
+    ("fsw_small", {"time.probe_dt": -1e-3}, "time.probe_dt"),
+    ("fsw", {"time.probe_dt": 1e-6}, "probe samples"),
 ])
 def test_formulations_the_model_cannot_take_are_refused(scene, overrides, message):
     """Combinations of options the model does not support, refused at validation as a
