@@ -237,7 +237,7 @@ def test_tolerances_of_a_fixed_step_scene_are_not_used():
     # a Lagrangian scene's probes are material points, recorded where each step takes them
     ("fsw_paper", {"time.probe_dt": 1e-3}, "time.probe_dt"),
     ("fsw_small", {"time.probe_dt": -1e-3}, "time.probe_dt"),
-    ("fsw", {"time.probe_dt": 1e-6}, "probe samples"),
+    ("fsw", {"time.probe_dt": 1e-8}, "probe samples"),
 ])
 def test_formulations_the_model_cannot_take_are_refused(scene, overrides, message):
     """Combinations of options the model does not support, refused at validation as a
