@@ -1,8 +1,9 @@
 """The compiled MLS kernel: shape functions of all evaluation points in few jitted calls.
 
-The kernel runs on all evaluation points at once (in calls of up to :data:`CALL_MAX`, padded
-to a multiple of :data:`CHUNK`) and depends only on that padded size and the stencil width m
-(and q): rebuilding stencils for a moved cloud with the same ``m_max`` does not recompile.
+The kernel runs on all evaluation points at once (in equal calls of up to :data:`CALL_MAX`,
+each a multiple of :data:`CHUNK`) and depends only on that call size and the stencil width m
+(and q): rebuilding stencils for a moved cloud with the same ``m_max`` does not recompile, and
+the value-only kernel of a run's targets compiles one shape (:func:`call_shape`).
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._compile_ahead import compile_ahead, wait
 from ._shape import shape_functions
 
 CHUNK = 128
@@ -74,48 +74,66 @@ def value_kernel(x, y, mask, h, c, q):
     return phi, bound, jnp.isfinite(phi).all(1)
 
 
-@functools.partial(jax.jit, static_argnames=("n",))
-def _joined(parts, n):
-    """The first n rows of the concatenation of each array's ``parts`` (a tuple per call), on
-    the device: the weights stay jax arrays, for the Stencils, without a copy through numpy
-    (a copy per rebuild saved).  Compiled per (n, calls): a concatenation and a slice."""
-    return tuple(jnp.concatenate(p)[:n] if len(p) > 1 else p[0][:n] for p in zip(*parts))
+@functools.partial(jax.jit, static_argnames=("n", "m"))
+def _joined(parts, n, m):
+    """The first n rows and m columns of the concatenation of each array's ``parts`` (a tuple
+    per call), on the device: the weights stay jax arrays, for the Stencils, without a copy
+    through numpy (a copy per rebuild saved).  Compiled per (n, m, calls): a concatenation and
+    a slice."""
+    return tuple((jnp.concatenate(p) if len(p) > 1 else p[0])[:n, :m] for p in zip(*parts))
 
 
-_COMPILED: set = set()
-"""(kernel, rows, m, q) of the kernel calls made in this process (:func:`run_kernel`)."""
+VALUE_WIDTH = 64
+"""Least stencil width of a :func:`value_kernel` call: the value-only stencils of targets
+(probes, sections, outputs) are made once per run, each set with its own neighbour count, and
+their calls are padded to this width (or the next multiple of :data:`WIDTH_MULTIPLE`) and to
+:data:`CALL_MAX` rows, so that one shape serves them all: one compilation where each set
+compiled its own (the value kernel costs a few ms a call, its compilation about a second)."""
+
+WIDTH_MULTIPLE = 16
+"""Widths above :data:`VALUE_WIDTH` of value-only calls are padded to a multiple of this."""
+
+
+def call_shape(n: int, m: int, derivatives: bool) -> tuple[int, int, int]:
+    """``(calls, rows, width)`` of the kernel calls for n stencils of width m.
+
+    The cloud's own stencils (``derivatives``, rebuilt at every step of a moving cloud) keep
+    their width and are cut into equal calls of a multiple of :data:`CHUNK` rows, one compiled
+    shape per build; value-only ones take calls of :data:`CALL_MAX` rows and at least
+    :data:`VALUE_WIDTH` columns."""
+    calls = -(-n // CALL_MAX)
+    if derivatives:
+        return calls, CHUNK * -(-n // (calls * CHUNK)), m
+    return calls, CALL_MAX, max(VALUE_WIDTH, WIDTH_MULTIPLE * -(-m // WIDTH_MULTIPLE))
 
 
 def run_kernel(x, y, mask, h, c, q, derivatives=True):
     """Run :func:`kernel` on all evaluation points, in calls of at most :data:`CALL_MAX`:
     ``(phi, dx, dy, dxx, dxy, dyy)`` (n, m) as jax arrays, ``bound, finite`` (n,) in numpy.
 
-    The points are padded (with copies of the first stencil) to a multiple of :data:`CHUNK`,
-    so that the compiled shapes do not depend on N itself.  The numpy inputs go to the jitted
-    kernel as they are (no separate ``jnp.asarray`` dispatches), and every call is dispatched
-    before any result is read.  Without ``derivatives``, :func:`value_kernel` runs instead
-    and the five derivative arrays are None.
+    The points are padded (with copies of the first stencil) and the calls shaped by
+    :func:`call_shape`, so that the compiled shapes do not depend on N itself; value-only
+    stencils are also padded with columns outside the support (zero weight), sliced off the
+    results.  The numpy inputs go to the jitted kernel as they are (no separate
+    ``jnp.asarray`` dispatches), and every call is dispatched before any result is read.
+    Without ``derivatives``, :func:`value_kernel` runs instead and the five derivative arrays
+    are None.
     """
-    n = x.shape[0]
-    n_pad = -(-n // CHUNK) * CHUNK
+    n, m = x.shape
+    calls, rows, width = call_shape(n, m, derivatives)
+    n_pad = calls * rows
 
-    def padded(a):
-        return np.concatenate([a, np.repeat(a[:1], n_pad - n, axis=0)]) if n_pad > n else a
+    def padded(a, columns=False):
+        if n_pad > n:
+            a = np.concatenate([a, np.repeat(a[:1], n_pad - n, axis=0)])
+        if columns and width > m:
+            a = np.concatenate([a, np.zeros((n_pad, width - m), dtype=a.dtype)], axis=1)
+        return a
 
-    x, y, mask, h = padded(x), padded(y), padded(mask), padded(h)
+    x, y, mask, h = padded(x, True), padded(y, True), padded(mask, True), padded(h)
     compiled = kernel if derivatives else value_kernel
-    starts = range(0, n_pad, CALL_MAX)
-    # the calls' distinct shapes (a full call and the rest), new to this process, compile side by
-    # side in the background rather than one after the other at their calls
-    ahead = {(compiled, min(CALL_MAX, n_pad - i), x.shape[1], q): i for i in starts}
-    if len(ahead) > 1 and not set(ahead) <= _COMPILED:
-        for future in [compile_ahead(compiled, x[i:i + CALL_MAX], y[i:i + CALL_MAX], mask[i:i + CALL_MAX],
-                                     h[i:i + CALL_MAX], c, q) for i in ahead.values()]:
-            wait(future)
-    _COMPILED.update(ahead)
-    calls = [compiled(x[i:i + CALL_MAX], y[i:i + CALL_MAX], mask[i:i + CALL_MAX], h[i:i + CALL_MAX], c, q)
-             for i in starts]
-    weights = _joined(tuple(res[:-2] for res in calls), n)
-    bound, finite = (np.concatenate([np.asarray(res[k]) for res in calls])[:n] for k in (-2, -1))
+    starts = range(0, n_pad, rows)
+    calls_made = [compiled(x[i:i + rows], y[i:i + rows], mask[i:i + rows], h[i:i + rows], c, q) for i in starts]
+    weights = _joined(tuple(res[:-2] for res in calls_made), n, m)
+    bound, finite = (np.concatenate([np.asarray(res[k]) for res in calls_made])[:n] for k in (-2, -1))
     return (*weights, bound, finite) if derivatives else (*weights, None, None, None, None, None, bound, finite)
-
