@@ -2,11 +2,13 @@
 
 XLA compiles with Python's GIL released, so a compilation in another thread runs beside the
 caller's own work (another compilation, a factorisation) on a second core.  A program known
-before it is needed (the ANM's series programs, as soon as the residual's layout is known)
-is handed to :func:`compile_ahead`, which lowers and compiles it for the arguments' shapes in
-a small pool of threads; that fills jax's compilation cache, so the later ordinary call of
-the same jitted function on arguments of those shapes runs the compiled program.  The caller waits for the future before that first
-call (:func:`wait`): a call that came first would compile the program again.
+before it is needed (the ANM's series programs, as soon as the residual's layout is known; the
+value-only MLS kernel, while the cloud's own stencils are built) is handed to
+:func:`compile_ahead`, which lowers and compiles it for the arguments' shapes in a small pool
+of threads; that fills jax's compilation cache, so the later ordinary call of the same jitted
+function on arguments of those shapes runs the compiled program.  The caller waits for the
+future before that first call (:func:`wait`): a call that came first would compile the program
+again.
 """
 
 from __future__ import annotations

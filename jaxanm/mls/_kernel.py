@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._compile_ahead import compile_ahead, wait
 from ._shape import shape_functions
 
 CHUNK = 128
@@ -107,6 +108,21 @@ def call_shape(n: int, m: int, derivatives: bool) -> tuple[int, int, int]:
     return calls, CALL_MAX, max(VALUE_WIDTH, WIDTH_MULTIPLE * -(-m // WIDTH_MULTIPLE))
 
 
+_VALUES_AHEAD: dict = {}
+"""(c, q) -> the background compilation of :func:`value_kernel` at its one shape."""
+
+
+def _values_ahead(c: float, q: int):
+    """The compilation of the value-only kernel at the shape of a run's targets, started in the
+    background (once per (c, q) and process) when a cloud's own stencils are first built:
+    their compilation holds one core, and the targets' stencils come after them."""
+    if (c, q) not in _VALUES_AHEAD:
+        shape = (CALL_MAX, VALUE_WIDTH)
+        _VALUES_AHEAD[(c, q)] = compile_ahead(value_kernel, np.zeros(shape), np.zeros(shape), np.zeros(shape, bool),
+                                              np.ones(CALL_MAX), c, q)
+    return _VALUES_AHEAD[(c, q)]
+
+
 def run_kernel(x, y, mask, h, c, q, derivatives=True):
     """Run :func:`kernel` on all evaluation points, in calls of at most :data:`CALL_MAX`:
     ``(phi, dx, dy, dxx, dxy, dyy)`` (n, m) as jax arrays, ``bound, finite`` (n,) in numpy.
@@ -132,6 +148,9 @@ def run_kernel(x, y, mask, h, c, q, derivatives=True):
 
     x, y, mask, h = padded(x, True), padded(y, True), padded(mask, True), padded(h)
     compiled = kernel if derivatives else value_kernel
+    ahead = _values_ahead(c, q)
+    if not derivatives and width == VALUE_WIDTH:
+        wait(ahead)  # the call below then runs the program compiled in the background
     starts = range(0, n_pad, rows)
     calls_made = [compiled(x[i:i + rows], y[i:i + rows], mask[i:i + rows], h[i:i + rows], c, q) for i in starts]
     weights = _joined(tuple(res[:-2] for res in calls_made), n, m)
