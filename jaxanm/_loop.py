@@ -347,7 +347,6 @@ class TimeLoop:
         if o.checkpoints.due(k):
             self._write_checkpoint()
 
-
     def _observations(self, dense, t_new: float) -> list:
         """``(t, state)`` at each ``SaveAt.fn_ts`` within the step's segments, from their dense
         output (the last segment ends exactly at ``t_new``, as the step)."""

@@ -11,6 +11,7 @@ import dataclasses
 import numpy as np
 
 from ._acceptance import CHECK_LIMIT
+from ._hermite import hermite_terms
 from ._walk import Walk
 from .bordered import ContinuationFailure, ExtendedSystem
 
@@ -136,5 +137,4 @@ def hermite(system: ExtendedSystem, U0, U1, t0, t1, a: float) -> np.ndarray:
     within a step, and the cubic overshoots at folds.)"""
     chord = U1 - U0
     stretch = system.norm(chord) / a
-    d0, d1, mean = t0 * stretch, t1 * stretch, chord / a
-    return np.array([d0, (3 * mean - 2 * d0 - d1) / a, (d0 + d1 - 2 * mean) / a**2])
+    return hermite_terms(chord, t0 * stretch, t1 * stretch, a)

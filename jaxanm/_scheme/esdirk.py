@@ -41,7 +41,9 @@ import dataclasses
 
 import numpy as np
 
+from .._acceptance import evaluate_series
 from .._checks import integer
+from .._hermite import hermite_terms
 from .base import Interpolant, SchemeStep, TimeScheme, register
 
 
@@ -138,14 +140,8 @@ def hermite(x0, dx0, x1, dx1, order: int) -> Interpolant:
     ``dx1`` at 0 and 1; without ``dx0`` (None) the quadratic with ``x0``, ``x1`` and ``dx1``.
     ``order``: the order its values are given (:class:`~jaxanm.TimeScheme.interpolant`)."""
     delta = x1 - x0
-    if dx0 is None:
-        return Interpolant(lambda th: x0 + th * (2 * delta - dx1) + th * th * (dx1 - delta), order=order)
-
-    def at(th):
-        return (x0 + th * dx0 + th * th * (3 * delta - 2 * dx0 - dx1)
-                + th * th * th * (dx0 + dx1 - 2 * delta))
-
-    return Interpolant(at, order=order)
+    terms = np.array([2 * delta - dx1, dx1 - delta]) if dx0 is None else hermite_terms(delta, dx0, dx1)
+    return Interpolant(lambda theta: x0 + evaluate_series(terms, theta), order=order)
 
 
 @dataclasses.dataclass(frozen=True)
