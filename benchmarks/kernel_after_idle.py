@@ -12,9 +12,10 @@ solves on fsw_paper's cloud in four conditions, medians over ``--repeats`` calls
     python benchmarks/kernel_after_idle.py
     taskset -c 0 python benchmarks/kernel_after_idle.py   # the same on one CPU
 
-The MLS kernels (:func:`jaxanm.mls._kernel.run_kernel`) are called with the inputs a stencil rebuild
-of the cloud gives them; the solves are the refit's (7 solves of 3 right-hand sides with the
-SuperLU factors of the value matrix).
+The compiled MLS kernels (:func:`jaxanm.mls._kernel.run_kernel`, ``compiled=True``, as a
+moving cloud runs them) are called with the inputs a stencil rebuild of the cloud gives them;
+the solves are the refit's (7 solves of 3 right-hand sides with the SuperLU factors of the
+value matrix).
 """
 
 from __future__ import annotations
@@ -80,10 +81,10 @@ def main() -> None:
     memory = np.ones(8_000_000)  # 64 MB, more than this machine's caches
 
     def kernel():
-        np.asarray(run_kernel(*inputs, derivatives=True)[0])
+        np.asarray(run_kernel(*inputs, derivatives=True, compiled=True)[0])
 
     def value_kernel():
-        np.asarray(run_kernel(*inputs, derivatives=False)[0])
+        np.asarray(run_kernel(*inputs, derivatives=False, compiled=True)[0])
 
     def solves():
         for _ in range(7):

@@ -4,8 +4,8 @@ References: exact polynomial reproduction (quadratic fields), analytic derivativ
 field with fitted convergence slopes, partition of unity, direct sums for the helpers, the
 forward-mode autodiff kernel the closed form replaced, and a 50-digit evaluation of the MLS
 formulas.
-The compiled kernel depends on the stencil width only; the tests share m = 40 (one compilation)
-to keep the file fast.
+The compiled kernel depends on the stencil width only; the tests that run it share m = 40 (one
+compilation) to keep the file fast; the others run the host kernel.
 """
 
 from __future__ import annotations
@@ -364,11 +364,15 @@ def _decimal_weights(local, real, c=0.2):
     return out
 
 
-def test_closed_form_against_50_digits(clouds):
+@pytest.mark.parametrize("compiled", [False, True], ids=["host", "compiled"])
+def test_closed_form_against_50_digits(clouds, compiled):
     """At the 12 worst-conditioned points of the jittered cloud (rcond 1e-6 .. 1e-4, one-sided
     edge supports) and 4 interior ones, each weight array within QR_ERROR / sqrt(rcond) of
-    sum |w| of a 50-digit evaluation (the normal-equation kernel lost up to 6 digits there)."""
+    sum |w| of a 50-digit evaluation (the normal-equation kernel lost up to 6 digits there),
+    by the host's numpy kernel and by the compiled one."""
     points, st = clouds["jittered"]
+    if compiled:
+        st = mls.build_stencils(points, H, m_max=M, compiled=True)
     local, real = kernel_inputs(points, st)
     rcond = reciprocal_condition(points, st)
     order = np.argsort(rcond)
@@ -489,22 +493,35 @@ def test_helpers_match_direct_sums_and_trace(clouds):
 
 def test_moved_cloud_does_not_retrace(clouds):
     points, st = clouds["regular"]
+    mls.build_stencils(points, H, m_max=st.index.shape[1], compiled=True)
     before = kernel._cache_size()
     for seed in range(3):
         moved = jitter(points, DR, 0.1, seed=10 + seed)
-        st2 = mls.build_stencils(moved, H, m_max=st.index.shape[1])
+        st2 = mls.build_stencils(moved, H, m_max=st.index.shape[1], compiled=True)
         assert st2.index.shape == st.index.shape
     # Different nodes (count and positions) at the same number of targets: no retrace either.
-    mls.evaluate_at(disc_grid(DR / 2), H / 2, points, m_max=M)
+    mls.evaluate_at(disc_grid(DR / 2), H / 2, points, m_max=M, compiled=True)
     assert kernel._cache_size() == before
+
+
+def test_host_and_compiled_kernels_agree(clouds):
+    """The same formulas by numpy and by XLA (which fuses and contracts them differently): at
+    every point of the jittered cloud (rcond down to 1e-6) each weight array agrees within
+    twice the closed form's own error bound, QR_ERROR / sqrt(rcond) of sum |w| (each kernel
+    is within it of the exact weights), values and derivatives alike."""
+    points, host = clouds["jittered"]
+    compiled = mls.build_stencils(points, H, m_max=M, compiled=True)
+    np.testing.assert_array_equal(np.asarray(host.index), np.asarray(compiled.index))
+    rcond = reciprocal_condition(points, host)
+    for name, a, b in zip(NAMES, scaled(host), scaled(compiled)):
+        err = np.abs(a - b).max(axis=1)
+        assert np.all(err <= 2 * QR_ERROR / np.sqrt(rcond) * np.abs(a).sum(axis=1)), name
 
 
 def line(offset=0.0):
     """797 points spaced dr along a line at 30 degrees, moved off it by random offsets of size
     offset * dr (0: collinear).  Not axis-aligned: the equilibration of the moment matrix makes
     an axis-aligned thin cloud harmless, a slanted one stays ill-conditioned.
-
-    With m_max = M these error cases reuse the compiled kernel.
     """
     rng = np.random.default_rng(2)
     along = np.arange(797) * DR

@@ -226,10 +226,12 @@ def cloud_stencils(points: np.ndarray, n_tool: int, g: Geometry, m_max: int | No
     ``m_max`` fixes the stencil width (pass ``st.index.shape[1]`` of the first build when
     rebuilding a moved cloud, so that shapes, and compiled code, stay the same);
     ``neighbours`` (from :func:`neighbour_list`) carries the neighbour candidates from one
-    rebuild of a moving cloud to the next.
+    rebuild of a moving cloud to the next; those rebuilds run the compiled MLS kernel, whose
+    compilation pays over the steps (a cloud built once is computed on the host:
+    :func:`jaxanm.mls.build_stencils`).
     """
     return mls.build_stencils(_apart(points, n_tool, g), _radius(g, points, n_tool), m_max=m_max, c=g.c, q=g.q,
-                              neighbours=neighbours)
+                              neighbours=neighbours, compiled=neighbours is not None)
 
 
 def neighbour_list(g: Geometry) -> mls.NeighbourList:
@@ -251,11 +253,11 @@ def evaluate_stencils(points: np.ndarray, n_tool: int, g: Geometry, targets: np.
     (the same one-sided approximation as the model uses).  Returned stencils index the cloud.
     ``derivatives=False``: values only (see :func:`jaxanm.mls.evaluate_at`); ``neighbours``
     (from :func:`neighbour_list`) carries candidates from one call to the next for targets
-    that move with the cloud.
+    that move with the cloud (and, as in :func:`cloud_stencils`, selects the compiled kernel).
     """
     targets = np.array(targets, dtype=np.float64).reshape(-1, 2)
     r = np.hypot(targets[:, 0], targets[:, 1])
     h = g.h_factor * spacing(g, r, r < g.R1)
     targets[r < g.R1, 0] += _shift(g)
     return mls.evaluate_at(_apart(points, n_tool, g), h, targets, c=g.c, q=g.q,
-                           derivatives=derivatives, neighbours=neighbours)
+                           derivatives=derivatives, neighbours=neighbours, compiled=neighbours is not None)

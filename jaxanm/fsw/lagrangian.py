@@ -162,6 +162,9 @@ class RunRecorder(Recorder):
     def __init__(self, scene: Scene, model: Model, stencils, x0: np.ndarray, save_times: frozenset,
                  initial: np.ndarray | None = None, start: StartReport | None = None):
         super().__init__(scene, model, stencils, x0, save_times, initial=initial, start=start)
+        if self.tracers is not None or model.effects.lagrangian:
+            # values at moving points at every step: their kernel compiles while the run sets up
+            jaxanm.mls.compile_values_ahead(scene.geometry.c, scene.geometry.q)
         self.width = stencils.index.shape[1]
         # Rezoning: the material points separate from the nodes at the first re-seeding.
         self.markers = None

@@ -16,7 +16,9 @@ The MLS approximation has the quadratic basis ``p = [1, x, y, x^2, xy, y^2]`` an
 of paper eq. 30, ``w(r) = exp(-(r/c)^(2q))`` for ``r <= 1``, 0 otherwise, ``r = |x - x_j| / h``.
 Its shape functions and their first and second derivatives come in closed form from one QR
 factorisation of ``sqrt(W) P`` per stencil (``jaxanm/mls/_shape.py``), computed for all
-evaluation points in a few jitted calls (``_kernel.py``); stencils whose moment matrix is
+evaluation points by numpy on the host or, for stencils rebuilt at every step, in a few jitted
+calls (``_kernel.py``; :func:`compile_values_ahead` starts the value-only kernel's
+compilation in the background); stencils whose moment matrix is
 too ill-conditioned are refused (``_condition.py``).  Neighbours come from
 ``scipy.spatial.cKDTree``, or for a moving cloud from the candidate lists of a
 :class:`NeighbourList` (``_neighbours.py``), remade only when some point has moved far.
@@ -28,6 +30,7 @@ value and second-derivative orders to 4 and 2.
 """
 
 from ._gather import grad, hessian, laplacian, value
+from ._kernel import compile_values_ahead
 from ._neighbours import NeighbourList
 from ._stencils import Stencils, build_stencils, evaluate_at, value_matrix
 
@@ -35,6 +38,7 @@ __all__ = [
     "NeighbourList",
     "Stencils",
     "build_stencils",
+    "compile_values_ahead",
     "evaluate_at",
     "value_matrix",
     "value",

@@ -1,9 +1,21 @@
-"""The compiled MLS kernel: shape functions of all evaluation points in few jitted calls.
+"""The MLS kernel: shape functions of all evaluation points, on the host or compiled.
 
-The kernel runs on all evaluation points at once (in equal calls of up to :data:`CALL_MAX`,
-each a multiple of :data:`CHUNK`) and depends only on that call size and the stencil width m
-(and q): rebuilding stencils for a moved cloud with the same ``m_max`` does not recompile, and
-the value-only kernel of a run's targets compiles one shape (:func:`call_shape`).
+The same formulas (:func:`jaxanm.mls._shape.shape_functions`) run two ways, chosen by the
+caller (:func:`run_kernel`'s ``compiled``):
+
+- on the host by numpy (:func:`host_kernel`), in blocks of :data:`HOST_BLOCK` rows: nothing
+  to compile, so a cloud or a set of targets built once (a run's fixed cloud, its probes and
+  sections) costs no compilation, about a second and a half per kernel on a fresh machine,
+  for a build about twice the compiled kernel's time;
+- jitted (:func:`kernel`, :func:`value_kernel`), for stencils rebuilt call after call (a
+  moving cloud): on all evaluation points at once, in equal calls of up to
+  :data:`CALL_MAX`, each a multiple of :data:`CHUNK`, so that the kernel depends only on
+  that call size and the stencil width m (and q): rebuilding stencils for a moved cloud with
+  the same ``m_max`` does not recompile, and the value-only kernel compiles one shape
+  (:func:`call_shape`).
+
+The two differ by round-off (XLA fuses and contracts operations that numpy rounds one by one).
+The measurements are in ``benchmarks/results/cold_start.md``.
 """
 
 from __future__ import annotations
@@ -15,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._compile_ahead import compile_ahead, wait
+from .._x64 import entry_point
 from ._shape import shape_functions
 
 CHUNK = 128
@@ -112,10 +125,14 @@ _VALUES_AHEAD: dict = {}
 """(c, q) -> the background compilation of :func:`value_kernel` at its one shape."""
 
 
-def _values_ahead(c: float, q: int):
-    """The compilation of the value-only kernel at the shape of a run's targets, started in the
-    background (once per (c, q) and process) when a cloud's own stencils are first built:
-    their compilation holds one core, and the targets' stencils come after them."""
+@entry_point
+def compile_values_ahead(c: float = 0.2, q: int = 1):
+    """Start compiling, in the background, the value-only kernel that ``evaluate_at(...,
+    derivatives=False, compiled=True)`` runs for targets of up to :data:`VALUE_WIDTH`
+    neighbours (once per ``(c, q)`` and process), and return its pending compilation: for a
+    caller that will evaluate moving targets at every step (tracers, material points), so that
+    the compilation overlaps its setup instead of delaying its first step."""
+    c, q = float(c), int(q)
     if (c, q) not in _VALUES_AHEAD:
         shape = (CALL_MAX, VALUE_WIDTH)
         _VALUES_AHEAD[(c, q)] = compile_ahead(value_kernel, np.zeros(shape), np.zeros(shape), np.zeros(shape, bool),
@@ -123,9 +140,36 @@ def _values_ahead(c: float, q: int):
     return _VALUES_AHEAD[(c, q)]
 
 
-def run_kernel(x, y, mask, h, c, q, derivatives=True):
-    """Run :func:`kernel` on all evaluation points, in calls of at most :data:`CALL_MAX`:
-    ``(phi, dx, dy, dxx, dxy, dyy)`` (n, m) as jax arrays, ``bound, finite`` (n,) in numpy.
+HOST_BLOCK = 128
+"""Rows per block of :func:`host_kernel`: its (block, m) temporaries then stay in the caches,
+where whole-cloud arrays would stream through memory for each of the kernel's operations."""
+
+
+def host_kernel(x, y, mask, h, c, q, derivatives=True):
+    """:func:`kernel` (with ``derivatives``) or :func:`value_kernel` evaluated by numpy on the
+    host, by blocks of :data:`HOST_BLOCK` rows: the same outputs as :func:`run_kernel`, as
+    numpy arrays, without compiling anything."""
+    blocks = []
+    with np.errstate(all="ignore"):  # a singular moment matrix gives non-finite values: flagged below
+        for i in range(0, x.shape[0], HOST_BLOCK):
+            rows = slice(i, i + HOST_BLOCK)
+            blocks.append(shape_functions(x[rows], y[rows], mask[rows], c, q, derivatives, xp=np))
+        parts = [np.concatenate(p) for p in zip(*blocks)]
+        *weights, bound = parts
+        h1 = h[:, None]
+        if derivatives:
+            weights = [weights[0], weights[1] / h1, weights[2] / h1, *(w / (h1 * h1) for w in weights[3:])]
+        finite = np.isfinite(sum(w * 0.0 for w in weights).sum(axis=1))
+    if derivatives:
+        return (*weights, bound, finite)
+    return (weights[0], None, None, None, None, None, bound, finite)
+
+
+def run_kernel(x, y, mask, h, c, q, derivatives=True, compiled=False):
+    """The shape functions of all evaluation points: ``(phi, dx, dy, dxx, dxy, dyy)`` (n, m)
+    and ``bound, finite`` (n,) in numpy; ``compiled=False``: by :func:`host_kernel` (the
+    weights in numpy), else by :func:`kernel` in calls of at most :data:`CALL_MAX` (the
+    weights as jax arrays).
 
     The points are padded (with copies of the first stencil) and the calls shaped by
     :func:`call_shape`, so that the compiled shapes do not depend on N itself; value-only
@@ -135,6 +179,8 @@ def run_kernel(x, y, mask, h, c, q, derivatives=True):
     Without ``derivatives``, :func:`value_kernel` runs instead and the five derivative arrays
     are None.
     """
+    if not compiled:
+        return host_kernel(x, y, mask, h, c, q, derivatives)
     n, m = x.shape
     calls, rows, width = call_shape(n, m, derivatives)
     n_pad = calls * rows
@@ -148,9 +194,8 @@ def run_kernel(x, y, mask, h, c, q, derivatives=True):
 
     x, y, mask, h = padded(x, True), padded(y, True), padded(mask, True), padded(h)
     compiled = kernel if derivatives else value_kernel
-    ahead = _values_ahead(c, q)
     if not derivatives and width == VALUE_WIDTH:
-        wait(ahead)  # the call below then runs the program compiled in the background
+        wait(compile_values_ahead(c, q))  # the call below then runs the program compiled in the background
     starts = range(0, n_pad, rows)
     calls_made = [compiled(x[i:i + rows], y[i:i + rows], mask[i:i + rows], h[i:i + rows], c, q) for i in starts]
     weights = _joined(tuple(res[:-2] for res in calls_made), n, m)

@@ -11,8 +11,9 @@ equilibrated columns instead of through ``A``: the derivatives lose about
 ``log10(1 / rcond) / 2`` digits instead of the ``log10(1 / rcond)`` of an elimination on ``A``
 (tests/test_mls.py checks them against a 50-digit reference; the comparison with the
 elimination this replaced is in ``benchmarks/results/profile_host_step.md``).  Written in
-``jax.numpy`` for the jitted kernel (:mod:`jaxanm.mls._kernel`); its results are not
-differentiated with respect to the points: nothing in jaxanm does.
+an array namespace ``xp``: ``jax.numpy`` for the jitted kernel, ``numpy`` for the host
+(:mod:`jaxanm.mls._kernel` says which runs when); its results are not differentiated with
+respect to the points: nothing in jaxanm does.
 """
 
 from __future__ import annotations
@@ -37,7 +38,13 @@ paper's weight (c = 0.2) and h = 3 dr, interior points have rcond ~ 0.4 (regular
 the narrow Gaussian, have rcond ~ 5e-5 (regular) down to ~ 1e-6 (jittered)."""
 
 
-def _weight(x, y, mask, c, q):
+def _barrier(xp, value):
+    """``value`` behind an XLA optimisation barrier when traced by ``jax.numpy`` (see
+    :func:`shape_functions`), as it is with numpy."""
+    return jax.lax.optimization_barrier(value) if xp is jnp else value
+
+
+def _weight(x, y, mask, c, q, xp):
     """Weight ``w = exp(-g)``, ``g = (r^2 / c^2)^q``, at ``xi = 0`` from the nodes' local
     coordinates ``x, y``, and the derivatives of ``g`` with respect to ``xi``:
     ``(g_x, g_y)`` and ``(g_xx, g_xy, g_yy)`` (arrays shaped like ``x``).
@@ -49,14 +56,14 @@ def _weight(x, y, mask, c, q):
     the support r^2 <= 1, which the caller decides (:func:`jaxanm.mls.build_stencils`).
     """
     t = (x * x + y * y) / c**2
-    w = jnp.where(mask, jnp.exp(-(t**q)), 0.0)
+    w = xp.where(mask, xp.exp(-(t**q)), 0.0)
     tx, ty, tii = -2.0 * x / c**2, -2.0 * y / c**2, 2.0 / c**2
     d1 = q * t ** (q - 1) if q > 1 else 1.0
     d2 = q * (q - 1) * t ** (q - 2) if q > 1 else 0.0
     return w, (d1 * tx, d1 * ty), (d2 * tx * tx + d1 * tii, d2 * tx * ty, d2 * ty * ty + d1 * tii)
 
 
-def _cholesky_inverse(G):
+def _cholesky_inverse(G, xp):
     """``R^{-1}`` for the upper-triangular ``R`` with ``R^T R = G``, for n symmetric positive
     definite k x k matrices given entrywise: ``G[i][j]`` (n,) for ``i <= j``; ``R^{-1}`` the
     same way (nested lists, upper triangle).
@@ -68,7 +75,7 @@ def _cholesky_inverse(G):
     k = len(G)
     R = [[None] * k for _ in range(k)]
     for j in range(k):
-        R[j][j] = jnp.sqrt(G[j][j] - sum(R[i][j] * R[i][j] for i in range(j)))
+        R[j][j] = xp.sqrt(G[j][j] - sum(R[i][j] * R[i][j] for i in range(j)))
         for col in range(j + 1, k):
             R[j][col] = (G[j][col] - sum(R[i][j] * R[i][col] for i in range(j))) / R[j][j]
     X = [[None] * k for _ in range(k)]
@@ -79,9 +86,9 @@ def _cholesky_inverse(G):
     return X
 
 
-def _gram(V):
+def _gram(V, xp):
     """Upper triangle of ``V^T V`` for n matrices given by their columns ``V[i]`` (n, m)."""
-    return [[jnp.sum(V[i] * V[j], axis=1) if j >= i else None for j in range(len(V))] for i in range(len(V))]
+    return [[xp.sum(V[i] * V[j], axis=1) if j >= i else None for j in range(len(V))] for i in range(len(V))]
 
 
 def _times_upper(V, X):
@@ -89,7 +96,7 @@ def _times_upper(V, X):
     return [sum(V[i] * X[i][j][:, None] for i in range(j + 1)) for j in range(len(V))]
 
 
-def _cholesky_qr2(v, P):
+def _cholesky_qr2(v, P, xp):
     """The QR factorisation ``V S = Q R`` of the equilibrated ``V = sqrt(W) P`` (columns
     ``v * P[i]``, (n, m) each) for n stencils at once, by CholeskyQR2 (Fukaya, Nakatsukasa,
     Yanagisawa, Yamamoto, 2014; error analysis: Yamamoto et al., ETNA 44, 2015):
@@ -102,18 +109,18 @@ def _cholesky_qr2(v, P):
     ``R2^{-1}`` and ``R^{-1}`` (upper triangles, (n,) entries), and a lower bound (n,) of the
     reciprocal condition number of the equilibrated ``A = P^T W P``.
     """
-    A0 = _gram([v * p for p in P])  # P^T W P
-    s = [1.0 / jnp.sqrt(A0[i][i]) for i in range(N_BASIS)]
+    A0 = _gram([v * p for p in P], xp)  # P^T W P
+    s = [1.0 / xp.sqrt(A0[i][i]) for i in range(N_BASIS)]
     G1 = [[A0[i][j] * s[i] * s[j] if j >= i else None for j in range(N_BASIS)] for i in range(N_BASIS)]
-    R1inv = _cholesky_inverse(G1)
+    R1inv = _cholesky_inverse(G1, xp)
     # a lower bound of rcond(G1) (see jaxanm.mls._condition.condition_screen), det G1 = prod R1_jj^2
-    det = 1.0 / functools.reduce(jnp.multiply, [R1inv[j][j] for j in range(N_BASIS)]) ** 2
+    det = 1.0 / functools.reduce(xp.multiply, [R1inv[j][j] for j in range(N_BASIS)]) ** 2
     trace = sum(G1[j][j] for j in range(N_BASIS))
-    frobenius = jnp.sqrt(sum(G1[i][j] ** 2 * (1.0 if i == j else 2.0)
+    frobenius = xp.sqrt(sum(G1[i][j] ** 2 * (1.0 if i == j else 2.0)
                              for i in range(N_BASIS) for j in range(i, N_BASIS)))
     bound = det * ((N_BASIS - 1) / trace) ** (N_BASIS - 1) / frobenius
-    Q1 = jax.lax.optimization_barrier(_times_upper([v * p * si[:, None] for p, si in zip(P, s)], R1inv))
-    R2inv = _cholesky_inverse(_gram(Q1))
+    Q1 = _barrier(xp, _times_upper([v * p * si[:, None] for p, si in zip(P, s)], R1inv))
+    R2inv = _cholesky_inverse(_gram(Q1, xp), xp)
     # R^{-1} = R1^{-1} R2^{-1} (upper triangular); column j of R^{-T} is row j of R^{-1}
     Rinv = [[sum(R1inv[i][k] * R2inv[k][j] for k in range(i, j + 1)) if j >= i else None
              for j in range(N_BASIS)] for i in range(N_BASIS)]
@@ -125,7 +132,7 @@ def _cholesky_qr2(v, P):
 _BASIS_DERIVATIVES = (1.0, 1.0, 1.0, 2.0, 1.0, 2.0)
 
 
-def shape_functions(x, y, mask, c, q, derivatives=True):
+def shape_functions(x, y, mask, c, q, derivatives=True, xp=jnp):
     """MLS shape functions at ``xi = 0`` and, with ``derivatives``, their first ``(x, y)`` and
     second ``(xx, xy, yy)`` derivatives with respect to xi, for n stencils at once: node local
     coordinates ``x, y`` and ``mask`` (n, m).  Returns those (n, m) arrays followed by a lower
@@ -154,15 +161,18 @@ def shape_functions(x, y, mask, c, q, derivatives=True):
     matrices -- not as batched matrix products (XLA runs those as one tiny product per
     stencil, several times slower) nor ``jnp.linalg`` (batched LAPACK calls inside this kernel
     intermittently deadlocked the XLA CPU runtime, jaxlib 0.10.2, under load).
+
+    ``xp`` is the array namespace the formulas run on: ``jax.numpy`` (traced into the jitted
+    kernel) or ``numpy`` (on the host, no compilation); the two differ by round-off.
     """
     # optimization_barrier: arrays used by many later sums are computed once; without it XLA
     # fuses their producers (exp, the products with R^{-1}) into every consumer and recomputes
     # them there, which doubles the kernel's time
-    w, (gx, gy), (gxx, gxy, gyy) = _weight(x, y, mask, c, q)
-    v = jnp.sqrt(w)
-    v, gx, gy, gxx, gxy, gyy = jax.lax.optimization_barrier((v, gx, gy, gxx, gxy, gyy))
-    P = [jnp.ones_like(x), x, y, x * x, x * y, y * y]
-    s, Q1, R2inv, Rinv, bound = _cholesky_qr2(v, P)
+    w, (gx, gy), (gxx, gxy, gyy) = _weight(x, y, mask, c, q, xp)
+    v = xp.sqrt(w)
+    v, gx, gy, gxx, gxy, gyy = _barrier(xp, (v, gx, gy, gxx, gxy, gyy))
+    P = [xp.ones_like(x), x, y, x * x, x * y, y * y]
+    s, Q1, R2inv, Rinv, bound = _cholesky_qr2(v, P, xp)
 
     def Qz(j, f=None):
         """``Q (z_j + Q^T f)`` (n, m) for ``z_j = R^{-T} S p_,j`` and ``f`` (n, m).
@@ -174,15 +184,15 @@ def shape_functions(x, y, mask, c, q, derivatives=True):
         """
         z = {k: Rinv[j][k] * (s[j] * _BASIS_DERIVATIVES[j]) for k in range(j, N_BASIS)}
         if f is not None:
-            d = [jnp.sum(Q1[i] * f, axis=1) for i in range(N_BASIS)]
+            d = [xp.sum(Q1[i] * f, axis=1) for i in range(N_BASIS)]
             z = {k: z.get(k, 0.0) + sum(R2inv[i][k] * d[i] for i in range(k + 1)) for k in range(N_BASIS)}
         y = [sum(R2inv[i][k] * z[k] for k in range(i, N_BASIS) if k in z) for i in range(N_BASIS)]
         return sum(Q1[i] * y[i][:, None] for i in range(N_BASIS))
 
-    u = jax.lax.optimization_barrier(Qz(0))
+    u = _barrier(xp, Qz(0))
     if not derivatives:
         return v * u, bound
-    ux, uy = jax.lax.optimization_barrier((Qz(1, gx * u), Qz(2, gy * u)))
+    ux, uy = _barrier(xp, (Qz(1, gx * u), Qz(2, gy * u)))
     cxx, cxy, cyy = gx * gx - gxx, gx * gy - gxy, gy * gy - gyy
     uxx = Qz(3, 2.0 * gx * ux - cxx * u)
     uxy = Qz(4, gx * uy + gy * ux - cxy * u)

@@ -1,6 +1,6 @@
 """MLS stencils at the points of a cloud (:func:`build_stencils`) or at arbitrary targets
 (:func:`evaluate_at`), by one code path: the neighbour search, the checks of the inputs and of
-each support, the compiled kernel, the condition screen."""
+each support, the kernel (on the host, or compiled for rebuilds), the condition screen."""
 
 from __future__ import annotations
 
@@ -79,14 +79,15 @@ def _as_radius(h, n, owner):
     return arr
 
 
-def _build(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None, derivatives=True):
+def _build(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None, derivatives=True, compiled=False):
     """Shared code path of :func:`build_stencils` and :func:`evaluate_at`.
 
     ``same_cloud``: the evaluation points are the nodes themselves (``centers is nodes``);
     padding then repeats each point's own index and coinciding points are rejected.  Otherwise
     padding repeats the index of the nearest node.  ``neighbours``: a :class:`NeighbourList`
     to search instead of a new cKDTree (for the cloud itself, with a given ``m_max``).  Without
-    ``derivatives`` only ``phi`` is computed (the derivative fields are None).
+    ``derivatives`` only ``phi`` is computed (the derivative fields are None).  ``compiled``:
+    the jitted kernel instead of the host's (:mod:`jaxanm.mls._kernel`).
     """
     positive("c", c, hint="the paper uses c = 0.2")
     integer("q", q, 1, hint="the weight exp(-(r/c)^(2q)) is then smooth at r = 0, as its second derivatives "
@@ -134,7 +135,8 @@ def _build(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None, d
     # no fused multiply-add): inside the jitted kernel XLA may contract x*x + y*y into an FMA,
     # and for nodes at h to round-off (the polar cloud's rings) the two roundings disagree.
     inside = mask & (x * x + y * y <= 1.0)
-    phi, dx, dy, dxx, dxy, dyy, bound, finite = run_kernel(x, y, inside, h, float(c), int(q), derivatives)
+    phi, dx, dy, dxx, dxy, dyy, bound, finite = run_kernel(x, y, inside, h, float(c), int(q), derivatives,
+                                                               bool(compiled))
     rcond = condition_screen(bound, x, y, inside, float(c), int(q))
     bad = np.flatnonzero(~(finite & (rcond >= RCOND_MIN)))
     if bad.size:
@@ -147,11 +149,13 @@ def _build(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None, d
             f"few or (nearly) collinear; increase h (the paper uses h = 3 dr) so that the support "
             f"spans both directions, or add points."
         )
-    return Stencils(jnp.asarray(index), phi, dx, dy, dxx, dxy, dyy)
+    # on the device once, not at every call of a function that reads them
+    weights = (None if w is None else jnp.asarray(w) for w in (phi, dx, dy, dxx, dxy, dyy))
+    return Stencils(jnp.asarray(index), *weights)
 
 
 @entry_point
-def build_stencils(points, h, m_max=None, c=0.2, q=1, neighbours=None) -> Stencils:
+def build_stencils(points, h, m_max=None, c=0.2, q=1, neighbours=None, compiled=False) -> Stencils:
     """MLS stencils at the points of a cloud, each point being both node and collocation point.
 
     Parameters
@@ -173,6 +177,12 @@ def build_stencils(points, h, m_max=None, c=0.2, q=1, neighbours=None) -> Stenci
     neighbours : NeighbourList, optional
         Candidate lists kept from the previous build of a moving cloud (used with ``m_max``):
         the neighbour search then sorts those candidates instead of building a cKDTree.
+    compiled : bool
+        ``False``: the shape functions are computed by numpy on the host, nothing is compiled
+        (a cloud built once).  ``True``: by the jitted kernel, compiled once per shape (about
+        a second and a half on a fresh machine, kept in ``jaxanm run``'s compile cache) and
+        then about twice as fast per build: for a cloud rebuilt at every step.  The two
+        differ by round-off.
 
     Returns
     -------
@@ -187,11 +197,12 @@ def build_stencils(points, h, m_max=None, c=0.2, q=1, neighbours=None) -> Stenci
     """
     pts = _as_cloud("points", points)
     hh = _as_radius(h, pts.shape[0], "point")
-    return _build(pts, pts, hh, m_max, c, q, "point", same_cloud=True, neighbours=neighbours)
+    return _build(pts, pts, hh, m_max, c, q, "point", same_cloud=True, neighbours=neighbours, compiled=compiled)
 
 
 @entry_point
-def evaluate_at(points, h, targets, m_max=None, c=0.2, q=1, derivatives=True, neighbours=None) -> Stencils:
+def evaluate_at(points, h, targets, m_max=None, c=0.2, q=1, derivatives=True, neighbours=None,
+                compiled=False) -> Stencils:
     """MLS stencils at arbitrary target locations (probes, sections), from the nodes ``points``.
 
     Same approximation and code path as :func:`build_stencils`; ``h`` is a scalar or one radius
@@ -201,13 +212,14 @@ def evaluate_at(points, h, targets, m_max=None, c=0.2, q=1, derivatives=True, ne
     :func:`build_stencils` (default from the targets' neighbour counts).  ``derivatives=False``
     computes only ``phi`` (2x cheaper; the same values): the stencils' ``dx`` ... ``dyy`` are
     then None, for :func:`value` only.  ``neighbours``: a :class:`NeighbourList` kept for
-    moving targets on a moving cloud (e.g. material points), used instead of a new cKDTree.
+    moving targets on a moving cloud (e.g. material points), used instead of a new cKDTree;
+    ``compiled`` as for :func:`build_stencils`.
     """
     pts = _as_cloud("points", points)
     tgt = _as_cloud("targets", targets)
     hh = _as_radius(h, tgt.shape[0], "target")
     return _build(pts, tgt, hh, m_max, c, q, "target", same_cloud=False, derivatives=derivatives,
-                     neighbours=neighbours)
+                  neighbours=neighbours, compiled=compiled)
 
 
 def value_matrix(st: Stencils, n_nodes: int | None = None) -> scipy.sparse.csc_matrix:
