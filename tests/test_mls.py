@@ -542,6 +542,7 @@ def line(offset=0.0):
         (disc_grid(radius=2e-3), H, {"m_max": 4}, r"m_max must be an integer >= 6"),
         (disc_grid(radius=2e-3), H, {"q": 1.5}, r"q must be an integer >= 1, got 1.5; the weight"),
         (disc_grid(radius=2e-3), H, {"c": -1.0}, r"c must be a number > 0, got -1.0; the paper uses c = 0.2"),
+        (disc_grid(radius=2e-3), H, {"compiled": 1}, r"compiled must be True or False, got 1; True for stencils"),
         (np.r_[disc_grid(radius=2e-3), [[0.0, 0.0]]], H, {}, r"points \d+ and \d+ coincide"),
         (line(), 2 * H, {"m_max": M},
          r"point 0 .* singular or ill-conditioned.*7 nodes within.*increase h"),

@@ -3,12 +3,12 @@
 The same formulas (:func:`jaxanm.mls._shape.shape_functions`) run two ways, chosen by the
 caller (:func:`run_kernel`'s ``compiled``):
 
-- on the host by numpy (:func:`host_kernel`), in blocks of :data:`HOST_BLOCK` rows: nothing
-  to compile, so a cloud or a set of targets built once (a run's fixed cloud, its probes and
-  sections) costs no compilation, about a second and a half per kernel on a fresh machine,
-  for a build about twice the compiled kernel's time;
+- on the host by numpy (:func:`host_kernel`), in blocks of :data:`HOST_BLOCK` rows, for
+  stencils built once (a run's fixed cloud, its probes and sections): a build takes about
+  twice the compiled kernel's time and compiles nothing, where each kernel's compilation
+  takes about a second and a half on a fresh machine;
 - jitted (:func:`kernel`, :func:`value_kernel`), for stencils rebuilt call after call (a
-  moving cloud): on all evaluation points at once, in equal calls of up to
+  moving cloud, tracers): on all evaluation points at once, in equal calls of up to
   :data:`CALL_MAX`, each a multiple of :data:`CHUNK`, so that the kernel depends only on
   that call size and the stencil width m (and q): rebuilding stencils for a moved cloud with
   the same ``m_max`` does not recompile, and the value-only kernel compiles one shape
@@ -193,11 +193,11 @@ def run_kernel(x, y, mask, h, c, q, derivatives=True, compiled=False):
         return a
 
     x, y, mask, h = padded(x, True), padded(y, True), padded(mask, True), padded(h)
-    compiled = kernel if derivatives else value_kernel
+    program = kernel if derivatives else value_kernel
     if not derivatives and width == VALUE_WIDTH:
         wait(compile_values_ahead(c, q))  # the call below then runs the program compiled in the background
     starts = range(0, n_pad, rows)
-    calls_made = [compiled(x[i:i + rows], y[i:i + rows], mask[i:i + rows], h[i:i + rows], c, q) for i in starts]
+    calls_made = [program(x[i:i + rows], y[i:i + rows], mask[i:i + rows], h[i:i + rows], c, q) for i in starts]
     weights = _joined(tuple(res[:-2] for res in calls_made), n, m)
     bound, finite = (np.concatenate([np.asarray(res[k]) for res in calls_made])[:n] for k in (-2, -1))
     return (*weights, bound, finite) if derivatives else (*weights, None, None, None, None, None, bound, finite)

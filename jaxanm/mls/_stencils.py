@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse
 from scipy.spatial import cKDTree
 
-from .._checks import integer, positive
+from .._checks import flag, integer, positive
 from .._x64 import entry_point
 from ..errors import InputError
 from ._condition import condition_screen
@@ -94,6 +94,7 @@ def _build(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None, d
             "require; the paper uses q = 1")
     if m_max is not None:
         integer("m_max", m_max, N_BASIS, hint="or None: the largest neighbour count")
+    compiled = flag("compiled", compiled, hint="True for stencils rebuilt at every step, False for those built once")
     if neighbours is not None and (m_max is not None or not same_cloud):
         dist, idx, m = neighbours.query(nodes, h, None if m_max is None else int(m_max),
                                         None if same_cloud else centers)
@@ -135,8 +136,7 @@ def _build(nodes, centers, h, m_max, c, q, owner, same_cloud, neighbours=None, d
     # no fused multiply-add): inside the jitted kernel XLA may contract x*x + y*y into an FMA,
     # and for nodes at h to round-off (the polar cloud's rings) the two roundings disagree.
     inside = mask & (x * x + y * y <= 1.0)
-    phi, dx, dy, dxx, dxy, dyy, bound, finite = run_kernel(x, y, inside, h, float(c), int(q), derivatives,
-                                                               bool(compiled))
+    phi, dx, dy, dxx, dxy, dyy, bound, finite = run_kernel(x, y, inside, h, float(c), int(q), derivatives, compiled)
     rcond = condition_screen(bound, x, y, inside, float(c), int(q))
     bad = np.flatnonzero(~(finite & (rcond >= RCOND_MIN)))
     if bad.size:
