@@ -69,14 +69,25 @@ def kernel(x, y, mask, h, c, q):
     (n,); ``mask`` (n, m): real (not padding) entries within the support (r <= 1).  Called by
     :func:`run_kernel` with n a multiple of :data:`CHUNK`, in blocks of :data:`INNER`.
     """
-    phi, px, py, pxx, pxy, pyy, bound = _blocks(lambda *a: shape_functions(*a, c, q), x, y, mask)
+    *weights, bound = _blocks(lambda *a: shape_functions(*a, c, q), x, y, mask)
+    # the barrier: the finite test reads the outputs instead of fusing (recomputing) them
+    out = jax.lax.optimization_barrier(_per_length(weights, h))
+    return (*out, bound, _finite(out, jnp))
+
+
+def _per_length(weights, h):
+    """The six weight arrays with the derivatives' scaled coordinates undone: first derivatives
+    divided by each point's ``h``, second ones by ``h^2``."""
+    phi, px, py, pxx, pxy, pyy = weights
     h1 = h[:, None]
     h2 = h1 * h1
-    # the barrier: the finite test reads the outputs instead of fusing (recomputing) them
-    out = jax.lax.optimization_barrier((phi, px / h1, py / h1, pxx / h2, pxy / h2, pyy / h2))
-    # a * 0 is 0 for finite a and NaN otherwise: one sum instead of six boolean reductions
-    finite = jnp.isfinite(jnp.sum(sum(a * 0.0 for a in out), axis=1))
-    return (*out, bound, finite)
+    return (phi, px / h1, py / h1, pxx / h2, pxy / h2, pyy / h2)
+
+
+def _finite(weights, xp):
+    """Per row, whether every weight array is finite there: ``a * 0`` is 0 for finite ``a`` and
+    NaN otherwise, so one sum instead of a boolean reduction per array."""
+    return xp.isfinite(xp.sum(sum(a * 0.0 for a in weights), axis=1))
 
 
 @functools.partial(jax.jit, static_argnames=("q",))
@@ -154,12 +165,10 @@ def host_kernel(x, y, mask, h, c, q, derivatives=True):
         for i in range(0, x.shape[0], HOST_BLOCK):
             rows = slice(i, i + HOST_BLOCK)
             blocks.append(shape_functions(x[rows], y[rows], mask[rows], c, q, derivatives, xp=np))
-        parts = [np.concatenate(p) for p in zip(*blocks)]
-        *weights, bound = parts
-        h1 = h[:, None]
+        *weights, bound = (np.concatenate(p) for p in zip(*blocks))
         if derivatives:
-            weights = [weights[0], weights[1] / h1, weights[2] / h1, *(w / (h1 * h1) for w in weights[3:])]
-        finite = np.isfinite(sum(w * 0.0 for w in weights).sum(axis=1))
+            weights = list(_per_length(weights, h))
+        finite = _finite(weights, np)
     if derivatives:
         return (*weights, bound, finite)
     return (weights[0], None, None, None, None, None, bound, finite)
