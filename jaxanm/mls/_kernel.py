@@ -4,9 +4,9 @@ The same formulas (:func:`jaxanm.mls._shape.shape_functions`) run two ways, chos
 caller (:func:`run_kernel`'s ``compiled``):
 
 - on the host by numpy (:func:`host_kernel`), in blocks of :data:`HOST_BLOCK` rows, for
-  stencils built once (a run's fixed cloud, its probes and sections): a build takes about
-  twice the compiled kernel's time and compiles nothing, where each kernel's compilation
-  takes about a second and a half on a fresh machine;
+  stencils built once (a run's fixed cloud, its probes and sections): a build is slower than
+  the compiled kernel's by milliseconds to tens of milliseconds and compiles nothing, where
+  each kernel's compilation takes over a second;
 - jitted (:func:`kernel`, :func:`value_kernel`), for stencils rebuilt call after call (a
   moving cloud, tracers): on all evaluation points at once, in equal calls of up to
   :data:`CALL_MAX`, each a multiple of :data:`CHUNK`, so that the kernel depends only on
@@ -15,7 +15,8 @@ caller (:func:`run_kernel`'s ``compiled``):
   (:func:`call_shape`).
 
 The two differ by round-off (XLA fuses and contracts operations that numpy rounds one by one).
-The measurements are in ``benchmarks/results/cold_start.md``.
+The measurements are in ``benchmarks/results/mls_host_kernel.md`` (builds) and
+``benchmarks/results/cold_start.md`` (a first run).
 """
 
 from __future__ import annotations

@@ -179,9 +179,9 @@ def build_stencils(points, h, m_max=None, c=0.2, q=1, neighbours=None, compiled=
         the neighbour search then sorts those candidates instead of building a cKDTree.
     compiled : bool
         ``False``: the shape functions are computed by numpy on the host, nothing is compiled
-        (a cloud built once).  ``True``: by the jitted kernel, compiled once per shape (about
-        a second and a half on a fresh machine, kept in ``jaxanm run``'s compile cache) and
-        then about twice as fast per build: for a cloud rebuilt at every step.  The two
+        (a cloud built once).  ``True``: by the jitted kernel, compiled once per shape (over
+        a second, kept in ``jaxanm run``'s compile cache) and then faster per build: for a
+        cloud rebuilt at every step (``benchmarks/results/mls_host_kernel.md``).  The two
         differ by round-off.
 
     Returns
